@@ -1,0 +1,139 @@
+//! `const fn` elementary functions in f64, used to generate lookup tables (twiddles, sigmoid,
+//! tanh) at compile time instead of pasting them.
+//!
+//! They only use IEEE-754 `+ - * /`, which are correctly rounded on every target, so a table
+//! built at run time on the Cortex-M4 (soft-float f64) is bit-identical to one built on the host.
+//! Accuracy is about 1e-15 relative, far below the Q1.15 resolution the tables are rounded to.
+
+/// π to f64 precision.
+pub const PI: f64 = core::f64::consts::PI;
+
+/// e^x for |x| ≲ 700, by halving the argument until it is small, a Taylor series, then squaring back.
+pub const fn exp(x: f64) -> f64 {
+    let mut r = x;
+    let mut halvings = 0;
+    while r > 0.125 || r < -0.125 {
+        r /= 2.0;
+        halvings += 1;
+    }
+    // Taylor series of e^r for |r| <= 1/8: 16 terms reach well below f64 epsilon.
+    let mut sum = 1.0;
+    let mut term = 1.0;
+    let mut n = 1;
+    while n < 16 {
+        term = term * r / n as f64;
+        sum += term;
+        n += 1;
+    }
+    while halvings > 0 {
+        sum *= sum;
+        halvings -= 1;
+    }
+    sum
+}
+
+/// Logistic sigmoid 1 / (1 + e^-x).
+pub const fn sigmoid(x: f64) -> f64 {
+    if x >= 0.0 {
+        1.0 / (1.0 + exp(-x))
+    } else {
+        let e = exp(x);
+        e / (1.0 + e)
+    }
+}
+
+/// Hyperbolic tangent, as 2σ(2x) - 1 written to stay accurate near 0.
+pub const fn tanh(x: f64) -> f64 {
+    if x < 0.0 {
+        return -tanh(-x);
+    }
+    if x > 20.0 {
+        return 1.0;
+    }
+    let e = exp(-2.0 * x);
+    // (1 - e) / (1 + e); for small x use the series to avoid cancellation.
+    if x < 0.125 {
+        let x2 = x * x;
+        // tanh x = x - x^3/3 + 2x^5/15 - 17x^7/315 + 62x^9/2835
+        x * (1.0 - x2 / 3.0 + 2.0 * x2 * x2 / 15.0 - 17.0 * x2 * x2 * x2 / 315.0
+            + 62.0 * x2 * x2 * x2 * x2 / 2835.0)
+    } else {
+        (1.0 - e) / (1.0 + e)
+    }
+}
+
+/// (cos θ, sin θ) for θ = 2π·m/n, reduced to the first octant so the series converges fast.
+pub const fn cos_sin_turn(m: u32, n: u32) -> (f64, f64) {
+    // Exact integer reduction of the angle m/n turns into [0, 1) turns, then by symmetry to
+    // [0, 1/8] turns, where the Taylor series below is accurate to f64 precision.
+    let m = m % n;
+    // Work in units of 1/(8n) turn: a = 8m, octant = a / n, remainder r in [0, n).
+    let a = 8 * m as u64;
+    let octant = a / n as u64;
+    let r = a % n as u64;
+    // θ' in [0, π/4): the angle within the octant.
+    let t = (r as f64) / (n as f64) * (PI / 4.0);
+    let (c, s) = cos_sin_small(t);
+    // Angle within the octant counted from the octant's start; for odd octants, mirror.
+    let (c2, s2) = cos_sin_small(PI / 4.0 - t);
+    match octant {
+        0 => (c, s),
+        1 => (s2, c2),
+        2 => (-s, c),
+        3 => (-c2, s2),
+        4 => (-c, -s),
+        5 => (-s2, -c2),
+        6 => (s, -c),
+        _ => (c2, -s2),
+    }
+}
+
+/// Taylor series of cos and sin for |t| <= π/4.
+const fn cos_sin_small(t: f64) -> (f64, f64) {
+    let t2 = t * t;
+    let mut c = 1.0;
+    let mut s = t;
+    let mut tc = 1.0;
+    let mut ts = t;
+    let mut k = 1;
+    while k < 12 {
+        tc = -tc * t2 / ((2 * k - 1) as f64 * (2 * k) as f64);
+        ts = -ts * t2 / ((2 * k) as f64 * (2 * k + 1) as f64);
+        c += tc;
+        s += ts;
+        k += 1;
+    }
+    (c, s)
+}
+
+/// Round half away from zero to the nearest integer, as `f64::round` does, in a `const fn`.
+pub const fn round(x: f64) -> f64 {
+    let t = if x >= 0.0 { x + 0.5 } else { x - 0.5 };
+    // Truncation toward zero through an integer: every value rounded here fits in i64.
+    (t as i64) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn matches_libm_to_1e_13() {
+        for i in -400..=400 {
+            let x = i as f64 * 0.05;
+            assert!((exp(x) - x.exp()).abs() <= 1e-13 * x.exp().max(1.0), "exp {x}");
+            assert!((sigmoid(x) - 1.0 / (1.0 + (-x).exp())).abs() < 1e-14, "sigmoid {x}");
+            assert!((tanh(x) - x.tanh()).abs() < 1e-14, "tanh {x}");
+        }
+        for n in 1..=64u32 {
+            for m in 0..2 * n {
+                let th = 2.0 * std::f64::consts::PI * m as f64 / n as f64;
+                let (c, s) = cos_sin_turn(m, n);
+                assert!((c - th.cos()).abs() < 1e-14 && (s - th.sin()).abs() < 1e-14, "{m}/{n}");
+            }
+        }
+        assert_eq!(round(2.5), 3.0);
+        assert_eq!(round(-2.5), -3.0);
+        assert_eq!(round(-0.4), 0.0);
+    }
+}

@@ -1,0 +1,1 @@
+//! slipguard host tools (data layer arrives with the data issue).

@@ -1,0 +1,1 @@
+//! Shared helpers for slipguard's cross-crate integration tests.
