@@ -42,7 +42,24 @@ pub const fn sigmoid(x: f64) -> f64 {
     }
 }
 
-/// Hyperbolic tangent, as 2σ(2x) - 1 written to stay accurate near 0.
+/// e^x - 1, accurate near 0 where `exp(x) - 1` would cancel.
+pub const fn expm1(x: f64) -> f64 {
+    if x > 0.5 || x < -0.5 {
+        return exp(x) - 1.0;
+    }
+    // Taylor series without the leading 1; 24 terms reach f64 epsilon for |x| <= 1/2.
+    let mut sum = 0.0;
+    let mut term = 1.0;
+    let mut n = 1;
+    while n < 24 {
+        term = term * x / n as f64;
+        sum += term;
+        n += 1;
+    }
+    sum
+}
+
+/// Hyperbolic tangent, as -expm1(-2x) / (2 + expm1(-2x)), which stays accurate near 0.
 pub const fn tanh(x: f64) -> f64 {
     if x < 0.0 {
         return -tanh(-x);
@@ -50,16 +67,8 @@ pub const fn tanh(x: f64) -> f64 {
     if x > 20.0 {
         return 1.0;
     }
-    let e = exp(-2.0 * x);
-    // (1 - e) / (1 + e); for small x use the series to avoid cancellation.
-    if x < 0.125 {
-        let x2 = x * x;
-        // tanh x = x - x^3/3 + 2x^5/15 - 17x^7/315 + 62x^9/2835
-        x * (1.0 - x2 / 3.0 + 2.0 * x2 * x2 / 15.0 - 17.0 * x2 * x2 * x2 / 315.0
-            + 62.0 * x2 * x2 * x2 * x2 / 2835.0)
-    } else {
-        (1.0 - e) / (1.0 + e)
-    }
+    let e = expm1(-2.0 * x);
+    -e / (2.0 + e)
 }
 
 /// (cos θ, sin θ) for θ = 2π·m/n, reduced to the first octant so the series converges fast.
