@@ -8,26 +8,32 @@
 /// π to f64 precision.
 pub const PI: f64 = core::f64::consts::PI;
 
-/// e^x for |x| ≲ 700, by halving the argument until it is small, a Taylor series, then squaring back.
+/// e^x for |x| < 700: x = k·ln2 + r with |r| <= ln2/2 (Cody–Waite split of ln2, so k·ln2 is
+/// exact), a Taylor series for e^r, then an exact scaling by 2^k.
 pub const fn exp(x: f64) -> f64 {
-    let mut r = x;
-    let mut halvings = 0;
-    while r > 0.125 || r < -0.125 {
-        r /= 2.0;
-        halvings += 1;
-    }
-    // Taylor series of e^r for |r| <= 1/8: 16 terms reach well below f64 epsilon.
+    // ln2 split into a high part with trailing zero bits (k·LN2_HI is exact for |k| < 2^11)
+    // and the remainder (fdlibm's constants).
+    const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-1;
+    const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10;
+    let kf = round(x / core::f64::consts::LN_2);
+    let r = (x - kf * LN2_HI) - kf * LN2_LO;
+    // 22 terms of the series reach f64 epsilon for |r| <= 0.35.
     let mut sum = 1.0;
     let mut term = 1.0;
     let mut n = 1;
-    while n < 16 {
+    while n < 22 {
         term = term * r / n as f64;
         sum += term;
         n += 1;
     }
-    while halvings > 0 {
-        sum *= sum;
-        halvings -= 1;
+    let mut k = kf as i64;
+    while k > 0 {
+        sum *= 2.0;
+        k -= 1;
+    }
+    while k < 0 {
+        sum /= 2.0;
+        k += 1;
     }
     sum
 }
