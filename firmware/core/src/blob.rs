@@ -1,1 +1,951 @@
-//! (in progress)
+//! Model blob format v1: parsed zero-copy from `&[u8]` (flash on the target, an aligned buffer
+//! on the host). The byte-by-byte layout is in `docs/model-format.md`; this module is its only
+//! parser and (behind `std`) its only writer.
+//!
+//! Layout: a 64-byte header, a tensor directory of 16-byte entries, the tensors (each at a
+//! 4-byte aligned offset), and a CRC-32 (ISO-HDLC, as zlib's `crc32`) of everything before it.
+//! All integers are little-endian. The blob must start at a 4-byte aligned address so that the
+//! `i32` tables can be read in place.
+//!
+//! Every malformed blob returns its own [`BlobError`]; nothing here panics on data.
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::features::stft::{StftConfig, StftError, WindowShape};
+use crate::{MAX_HIDDEN, MAX_INPUT};
+
+/// First four bytes of every blob.
+pub const MAGIC: [u8; 4] = *b"SGMB";
+/// The format version this parser reads.
+pub const VERSION: u16 = 1;
+/// Size of the fixed header.
+pub const HEADER_LEN: usize = 64;
+/// Size of one tensor directory entry.
+pub const DIR_ENTRY_LEN: usize = 16;
+/// Size of the trailing CRC.
+pub const CRC_LEN: usize = 4;
+/// Most tensors a v1 blob can hold (feature norm, 2 × LSTM weights and row params, dense weights and params).
+pub const MAX_TENSORS: usize = 7;
+/// The CRC used by the blob (CRC-32/ISO-HDLC: zlib, PNG, Ethernet).
+pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Which of the paper's four networks (Fig. 5) the blob holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Variant {
+    /// (a) LSTM on the force.
+    Force = 0,
+    /// (b) STFT & LSTM: LSTM on the STFT bands.
+    Stft = 1,
+    /// (c) (Data + STFT) & LSTM: one LSTM on the force and the bands.
+    ForceStft = 2,
+    /// (d) LSTM + STFT & LSTM: a force LSTM and a band LSTM, hidden states concatenated into the dense layer.
+    DualLstm = 3,
+}
+
+impl Variant {
+    /// All variants, in format order.
+    pub const ALL: [Variant; 4] = [Self::Force, Self::Stft, Self::ForceStft, Self::DualLstm];
+
+    /// Decodes the header byte.
+    pub fn from_u8(v: u8) -> Option<Self> {
+        Self::ALL.get(v as usize).copied()
+    }
+    /// Whether the network sees the force sample (and d(t) when enabled).
+    pub fn uses_force(self) -> bool {
+        !matches!(self, Self::Stft)
+    }
+    /// Whether the network sees STFT bands.
+    pub fn uses_bands(self) -> bool {
+        !matches!(self, Self::Force)
+    }
+    /// Number of LSTMs.
+    pub fn lstm_count(self) -> usize {
+        if matches!(self, Self::DualLstm) { 2 } else { 1 }
+    }
+    /// Short name used by the CLIs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Force => "lstm",
+            Self::Stft => "stft-lstm",
+            Self::ForceStft => "data-stft-lstm",
+            Self::DualLstm => "lstm-stft-lstm",
+        }
+    }
+}
+
+/// Unit of the raw samples the blob's input scaling expects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum InputUnit {
+    /// Force in millinewtons (fingertip sensors).
+    MilliNewton = 0,
+    /// Raw converter counts (e.g. 16-bit suction pressure).
+    Counts = 1,
+}
+
+/// Flag bits of header byte 17.
+pub mod flags {
+    /// The force difference d(t) = x(t) - x(t-1) (paper eq. 3) is an input of the force LSTM.
+    pub const FORCE_DIFF: u8 = 1 << 0;
+    /// All bits v1 defines.
+    pub const KNOWN: u8 = FORCE_DIFF;
+}
+
+/// Everything in the header except the tensor sizes: what the firmware and host tools need to
+/// run and describe the model. Shared by the quantized blob and the float reference.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ModelConfig {
+    /// Identifier chosen by the exporter (e.g. a hash of the float weights).
+    pub model_id: u32,
+    /// Short ASCII name, zero padded.
+    pub name: [u8; 12],
+    /// Network variant.
+    pub variant: Variant,
+    /// Whether d(t) is an input of the force LSTM.
+    pub force_diff: bool,
+    /// Sample rate the model was trained at, in millihertz (16 700 = 16.7 Hz).
+    pub sample_rate_mhz: u32,
+    /// Unit of raw samples.
+    pub input_unit: InputUnit,
+    /// Raw value (in `input_unit`) that maps to 0 in the Q1.15 input.
+    pub input_offset: i32,
+    /// Raw span (in `input_unit`) that maps to +1.0 in the Q1.15 input; > 0.
+    pub input_full_scale: i32,
+    /// STFT settings; all zero for [`Variant::Force`].
+    pub stft: StftConfig,
+    /// Hidden size of each LSTM (second is 0 unless [`Variant::DualLstm`]).
+    pub hidden: [u16; 2],
+    /// Cell state format of each LSTM: c is Q(15-C).C with C = this (1..=15).
+    pub cell_frac_bits: [u8; 2],
+    /// Decision threshold on p(unstable), Q0.15 (1..=32767).
+    pub threshold_q15: u16,
+    /// Consecutive steps at or above the threshold before the flag rises (>= 1).
+    pub raise_after: u8,
+    /// Consecutive steps below the threshold before the flag clears (>= 1).
+    pub clear_after: u8,
+}
+
+impl ModelConfig {
+    /// Number of force-path features (force and d(t)) feeding the first LSTM or the shared one.
+    pub fn force_features(&self) -> usize {
+        if self.variant.uses_force() {
+            1 + self.force_diff as usize
+        } else {
+            0
+        }
+    }
+    /// Number of STFT band features.
+    pub fn band_features(&self) -> usize {
+        if self.variant.uses_bands() {
+            self.stft.n_bins as usize
+        } else {
+            0
+        }
+    }
+    /// Total features per step (rows of the normalisation table).
+    pub fn feature_count(&self) -> usize {
+        // d(t) is also allowed as the only non-band input of the STFT variant.
+        let diff_only = matches!(self.variant, Variant::Stft) && self.force_diff;
+        self.force_features() + diff_only as usize + self.band_features()
+    }
+    /// Input size of LSTM `k`: features are ordered [force, d(t), bands] and the dual variant
+    /// splits them after the force path.
+    pub fn lstm_inputs(&self, k: usize) -> usize {
+        match (self.variant, k) {
+            (Variant::DualLstm, 0) => self.force_features(),
+            (Variant::DualLstm, 1) => self.band_features(),
+            (_, 0) => self.feature_count(),
+            _ => 0,
+        }
+    }
+    /// Sample rate in Hz.
+    pub fn sample_rate_hz(&self) -> f32 {
+        self.sample_rate_mhz as f32 / 1000.0
+    }
+    /// Multiply-accumulates per channel step in the LSTMs and the dense layer (STFT excluded).
+    pub fn macs_per_step(&self) -> usize {
+        let mut macs = 0;
+        let mut dense_in = 0;
+        for k in 0..self.variant.lstm_count() {
+            let h = self.hidden[k] as usize;
+            macs += 4 * h * (self.lstm_inputs(k) + h);
+            dense_in += h;
+        }
+        macs + 2 * dense_in
+    }
+    /// The name as text (up to the first zero byte; non-ASCII shown as '?').
+    pub fn name_str(&self) -> &str {
+        let end = self
+            .name
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(self.name.len());
+        core::str::from_utf8(&self.name[..end]).unwrap_or("?")
+    }
+}
+
+/// What a tensor holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum TensorKind {
+    /// Per-feature normalisation, [`FeatureNorm`] rows.
+    FeatureNorm = 1,
+    /// LSTM weights, int8, 4H rows of [W_ih row (padded to 4) | W_hh row (padded to 4)].
+    LstmWeights = 2,
+    /// LSTM per-row requantisation, [`LstmRowParams`] rows.
+    LstmRowParams = 3,
+    /// Dense weights, int8, 2 rows over the (padded) concatenated hidden states.
+    DenseWeights = 4,
+    /// Dense per-row requantisation, [`DenseRowParams`] rows.
+    DenseRowParams = 5,
+}
+
+impl TensorKind {
+    fn from_u8(v: u8) -> Option<Self> {
+        Some(match v {
+            1 => Self::FeatureNorm,
+            2 => Self::LstmWeights,
+            3 => Self::LstmRowParams,
+            4 => Self::DenseWeights,
+            5 => Self::DenseRowParams,
+            _ => return None,
+        })
+    }
+}
+
+/// Element type codes of the directory.
+pub mod dtype {
+    /// Signed 8-bit.
+    pub const I8: u8 = 1;
+    /// Signed 32-bit little-endian.
+    pub const I32: u8 = 2;
+}
+
+/// Per-feature normalisation: `norm_q12 = sat16(round((x_q15 - mean_q15) · gain / 2^shift))`,
+/// i.e. (x - μ) / σ in Q3.12 with gain / 2^shift = 1 / (8σ) (σ in Q1.15 input units).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+#[repr(C)]
+pub struct FeatureNorm {
+    /// μ, Q1.15 (an `i32` so that the subtraction cannot overflow).
+    pub mean_q15: i32,
+    /// Mantissa of 1 / (8σ).
+    pub gain: i32,
+    /// Exponent of 1 / (8σ), 1..=62.
+    pub shift: i32,
+}
+
+/// Per-row requantisation of one LSTM gate row r:
+/// `z_q12 = sat16(round((acc_x·mx + acc_h·mh) / 2^shift) + bias_q12)` where
+/// `acc_x = Σ w_ih·x` (x Q3.12) and `acc_h = Σ w_hh·h` (h Q0.15).
+/// With per-row weight scales s_ih, s_hh: mx = s_ih·2^shift, mh = s_hh·2^(shift-3)
+/// (the 2^-3 aligns h's 15 fractional bits with x's 12).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+#[repr(C)]
+pub struct LstmRowParams {
+    /// Input-weight multiplier.
+    pub mx: i32,
+    /// Recurrent-weight multiplier.
+    pub mh: i32,
+    /// b_ih + b_hh of the row, Q3.12 (an `i32`, added before saturation).
+    pub bias_q12: i32,
+    /// Shared exponent of mx and mh, 1..=62.
+    pub shift: i32,
+}
+
+/// Per-row requantisation of one dense output: `logit_q12 = round(acc·m / 2^shift) + bias_q12`
+/// with `acc = Σ w·h` (h Q0.15) and m = s·2^(shift-3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+#[repr(C)]
+pub struct DenseRowParams {
+    /// Weight multiplier.
+    pub m: i32,
+    /// Bias, Q3.12 (in `i32`: a logit is not saturated before the two are subtracted).
+    pub bias_q12: i32,
+    /// Exponent of m, 1..=62.
+    pub shift: i32,
+}
+
+/// One LSTM's tensors, borrowed from the blob.
+#[derive(Clone, Copy, Debug)]
+pub struct LstmTensors<'a> {
+    /// Input size I.
+    pub inputs: usize,
+    /// Hidden size H.
+    pub hidden: usize,
+    /// Offset of the W_hh part inside a row: I rounded up to a multiple of 4.
+    pub hh_offset: usize,
+    /// Row length in bytes: hh_offset + H rounded up to a multiple of 4.
+    pub row_len: usize,
+    /// Cell state fractional bits C (c is Q(15-C).C).
+    pub cell_frac_bits: u32,
+    /// 4H rows × `row_len` int8 weights, gate order i, f, g, o (as PyTorch).
+    pub weights: &'a [i8],
+    /// 4H rows of requantisation parameters, same order.
+    pub rows: &'a [LstmRowParams],
+}
+
+/// The dense layer's tensors, borrowed from the blob.
+#[derive(Clone, Copy, Debug)]
+pub struct DenseTensors<'a> {
+    /// Row length: the padded hidden sizes of the LSTMs, concatenated.
+    pub row_len: usize,
+    /// 2 rows × `row_len` int8 weights: logit of "stable" (class 0), then "unstable" (class 1).
+    pub weights: &'a [i8],
+    /// 2 rows of requantisation parameters.
+    pub rows: &'a [DenseRowParams],
+}
+
+/// A parsed, validated model blob. Cheap to copy; borrows the bytes.
+#[derive(Clone, Copy, Debug)]
+pub struct ModelBlob<'a> {
+    /// Header fields.
+    pub config: ModelConfig,
+    /// Stored CRC-32 (also the blob's fingerprint).
+    pub crc: u32,
+    /// Total length in bytes, CRC included.
+    pub len: usize,
+    /// Normalisation of each feature, in feature order [force, d(t), bands].
+    pub norm: &'a [FeatureNorm],
+    /// The LSTMs (the second has `hidden == 0` unless dual).
+    pub lstm: [LstmTensors<'a>; 2],
+    /// The dense layer.
+    pub dense: DenseTensors<'a>,
+}
+
+/// Why a blob was refused. Each kind of damage has its own variant.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum BlobError {
+    /// Fewer bytes than the header, or than the length the header declares.
+    Truncated {
+        /// Bytes needed.
+        needed: u32,
+        /// Bytes present.
+        present: u32,
+    },
+    /// The first four bytes are not `SGMB`.
+    BadMagic,
+    /// A format version this firmware cannot read.
+    UnsupportedVersion(u16),
+    /// The header length or declared total length is impossible.
+    BadLength,
+    /// The CRC-32 does not match the contents.
+    BadCrc {
+        /// CRC stored in the blob.
+        stored: u32,
+        /// CRC of the bytes present.
+        computed: u32,
+    },
+    /// The blob does not start at a 4-byte aligned address, or a tensor offset is not 4-aligned.
+    Misaligned,
+    /// Unknown variant byte.
+    UnknownVariant(u8),
+    /// Unknown or reserved flag bits, input unit, or reserved bytes not zero.
+    UnknownField,
+    /// A size over the static bounds (hidden > MAX_HIDDEN, inputs > MAX_INPUT, bands > MAX_BANDS).
+    OverBounds,
+    /// Sizes that contradict the variant (e.g. a second LSTM in a single-LSTM model).
+    InconsistentSizes,
+    /// STFT settings the core cannot run.
+    Stft(StftError),
+    /// Sample rate, input scale or decision settings out of range.
+    BadSetting,
+    /// A directory entry with an unknown kind or element type.
+    UnknownTensor,
+    /// A tensor listed twice.
+    DuplicateTensor(TensorKind),
+    /// A tensor the variant needs is missing.
+    MissingTensor(TensorKind),
+    /// A tensor whose shape, type or byte length does not match the header.
+    TensorShape(TensorKind),
+    /// A tensor that reaches outside the data area.
+    TensorOutOfBounds(TensorKind),
+    /// A requantisation shift outside 1..=62 or a cell format outside 1..=15.
+    QuantParam(TensorKind),
+}
+
+impl core::fmt::Display for BlobError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Truncated { needed, present } => {
+                write!(f, "model blob truncated: {present} bytes, need {needed}")
+            }
+            Self::BadMagic => write!(f, "not a slipguard model blob (magic is not SGMB)"),
+            Self::UnsupportedVersion(v) => {
+                write!(
+                    f,
+                    "model blob format version {v} is not supported (this build reads {VERSION})"
+                )
+            }
+            Self::BadLength => write!(f, "model blob header or total length is impossible"),
+            Self::BadCrc { stored, computed } => write!(
+                f,
+                "model blob CRC mismatch: stored {stored:#010x}, computed {computed:#010x} (corrupt or partly written)"
+            ),
+            Self::Misaligned => write!(f, "model blob or one of its tensors is not 4-byte aligned"),
+            Self::UnknownVariant(v) => write!(f, "unknown model variant {v}"),
+            Self::UnknownField => write!(
+                f,
+                "unknown flag, unit or non-zero reserved field in the header"
+            ),
+            Self::OverBounds => write!(
+                f,
+                "model sizes exceed this build's bounds (hidden <= {MAX_HIDDEN}, inputs <= {MAX_INPUT})"
+            ),
+            Self::InconsistentSizes => write!(f, "model sizes contradict its variant"),
+            Self::Stft(e) => write!(f, "bad STFT settings: {e}"),
+            Self::BadSetting => write!(
+                f,
+                "sample rate, input scale or decision setting out of range"
+            ),
+            Self::UnknownTensor => write!(f, "tensor directory entry of unknown kind or type"),
+            Self::DuplicateTensor(k) => write!(f, "tensor {k:?} listed twice"),
+            Self::MissingTensor(k) => write!(f, "tensor {k:?} missing"),
+            Self::TensorShape(k) => write!(f, "tensor {k:?} has the wrong shape, type or length"),
+            Self::TensorOutOfBounds(k) => {
+                write!(f, "tensor {k:?} lies outside the blob's data area")
+            }
+            Self::QuantParam(k) => write!(
+                f,
+                "tensor {k:?} holds a quantisation parameter out of range"
+            ),
+        }
+    }
+}
+
+#[cfg(any(test, feature = "std"))]
+impl std::error::Error for BlobError {}
+
+/// Little-endian field readers over a slice already checked to be long enough.
+fn u16_at(b: &[u8], o: usize) -> u16 {
+    match b.get(o..o + 2) {
+        Some(s) => u16::from_le_bytes([s[0], s[1]]),
+        None => 0,
+    }
+}
+fn u32_at(b: &[u8], o: usize) -> u32 {
+    match b.get(o..o + 4) {
+        Some(s) => u32::from_le_bytes([s[0], s[1], s[2], s[3]]),
+        None => 0,
+    }
+}
+
+/// `n` rounded up to a multiple of 4 (row padding for word loads).
+pub const fn pad4(n: usize) -> usize {
+    (n + 3) & !3
+}
+
+#[derive(Clone, Copy)]
+struct DirEntry {
+    dtype: u8,
+    rows: usize,
+    cols: usize,
+    offset: usize,
+    len: usize,
+}
+
+impl<'a> ModelBlob<'a> {
+    /// Parses and validates a blob. `bytes` may be longer than the blob (a flash region): the
+    /// header's total length bounds it.
+    pub fn parse(bytes: &'a [u8]) -> Result<Self, BlobError> {
+        let present = bytes.len() as u32;
+        if bytes.len() < HEADER_LEN {
+            return Err(BlobError::Truncated {
+                needed: HEADER_LEN as u32,
+                present,
+            });
+        }
+        if bytes[0..4] != MAGIC {
+            return Err(BlobError::BadMagic);
+        }
+        let version = u16_at(bytes, 4);
+        if version != VERSION {
+            return Err(BlobError::UnsupportedVersion(version));
+        }
+        let header_len = u16_at(bytes, 6) as usize;
+        let total = u32_at(bytes, 8) as usize;
+        if header_len != HEADER_LEN || total < HEADER_LEN + CRC_LEN {
+            return Err(BlobError::BadLength);
+        }
+        if bytes.len() < total {
+            return Err(BlobError::Truncated {
+                needed: total as u32,
+                present,
+            });
+        }
+        let bytes = &bytes[..total];
+        let body = total - CRC_LEN;
+        let stored = u32_at(bytes, body);
+        let computed = CRC32.checksum(&bytes[..body]);
+        if stored != computed {
+            return Err(BlobError::BadCrc { stored, computed });
+        }
+        if bytes.as_ptr().align_offset(4) != 0 {
+            return Err(BlobError::Misaligned);
+        }
+        let config = parse_config(bytes)?;
+
+        let tensor_count = u16_at(bytes, 48) as usize;
+        let lstm_count = config.variant.lstm_count();
+        let expected_tensors = 1 + 2 * lstm_count + 2;
+        if tensor_count > MAX_TENSORS {
+            return Err(BlobError::InconsistentSizes);
+        }
+        let data_start = HEADER_LEN + tensor_count * DIR_ENTRY_LEN;
+        if data_start > body {
+            return Err(BlobError::Truncated {
+                needed: (data_start + CRC_LEN) as u32,
+                present: total as u32,
+            });
+        }
+
+        // Directory: slot 0 norm, 1/2 LSTM0 weights/params, 3/4 LSTM1, 5/6 dense.
+        let mut slots: [Option<DirEntry>; 7] = [None; 7];
+        for i in 0..tensor_count {
+            let e = &bytes[HEADER_LEN + i * DIR_ENTRY_LEN..HEADER_LEN + (i + 1) * DIR_ENTRY_LEN];
+            let kind = TensorKind::from_u8(e[0]).ok_or(BlobError::UnknownTensor)?;
+            let index = e[1] as usize;
+            let dt = e[2];
+            if (dt != dtype::I8 && dt != dtype::I32) || e[3] != 0 {
+                return Err(BlobError::UnknownTensor);
+            }
+            let slot = match kind {
+                TensorKind::FeatureNorm => 0,
+                TensorKind::LstmWeights if index < lstm_count => 1 + 2 * index,
+                TensorKind::LstmRowParams if index < lstm_count => 2 + 2 * index,
+                TensorKind::DenseWeights => 5,
+                TensorKind::DenseRowParams => 6,
+                _ => return Err(BlobError::InconsistentSizes),
+            };
+            if !matches!(kind, TensorKind::LstmWeights | TensorKind::LstmRowParams) && index != 0 {
+                return Err(BlobError::InconsistentSizes);
+            }
+            if slots[slot].is_some() {
+                return Err(BlobError::DuplicateTensor(kind));
+            }
+            let entry = DirEntry {
+                dtype: dt,
+                rows: u16_at(e, 4) as usize,
+                cols: u16_at(e, 6) as usize,
+                offset: u32_at(e, 8) as usize,
+                len: u32_at(e, 12) as usize,
+            };
+            if entry.offset < data_start
+                || entry
+                    .offset
+                    .checked_add(entry.len)
+                    .is_none_or(|end| end > body)
+            {
+                return Err(BlobError::TensorOutOfBounds(kind));
+            }
+            if entry.offset % 4 != 0 {
+                return Err(BlobError::Misaligned);
+            }
+            slots[slot] = Some(entry);
+        }
+        if tensor_count != expected_tensors {
+            // Report the first missing one.
+            let kinds = [
+                TensorKind::FeatureNorm,
+                TensorKind::LstmWeights,
+                TensorKind::LstmRowParams,
+                TensorKind::LstmWeights,
+                TensorKind::LstmRowParams,
+                TensorKind::DenseWeights,
+                TensorKind::DenseRowParams,
+            ];
+            for (slot, kind) in kinds.iter().enumerate() {
+                let needed = slot < 3 || slot >= 5 || lstm_count == 2;
+                if needed && slots[slot].is_none() {
+                    return Err(BlobError::MissingTensor(*kind));
+                }
+            }
+            return Err(BlobError::InconsistentSizes);
+        }
+        let get = |slot: usize, kind: TensorKind| slots[slot].ok_or(BlobError::MissingTensor(kind));
+
+        let n_features = config.feature_count();
+        let norm: &[FeatureNorm] = i32_table(
+            bytes,
+            get(0, TensorKind::FeatureNorm)?,
+            n_features,
+            3,
+            TensorKind::FeatureNorm,
+        )?;
+        for n in norm {
+            if !(1..=62).contains(&n.shift) {
+                return Err(BlobError::QuantParam(TensorKind::FeatureNorm));
+            }
+        }
+
+        let empty = LstmTensors {
+            inputs: 0,
+            hidden: 0,
+            hh_offset: 0,
+            row_len: 0,
+            cell_frac_bits: 0,
+            weights: &[],
+            rows: &[],
+        };
+        let mut lstm = [empty; 2];
+        let mut dense_len = 0;
+        for (k, l) in lstm.iter_mut().enumerate().take(lstm_count) {
+            let inputs = config.lstm_inputs(k);
+            let hidden = config.hidden[k] as usize;
+            let hh_offset = pad4(inputs);
+            let row_len = hh_offset + pad4(hidden);
+            let we = get(1 + 2 * k, TensorKind::LstmWeights)?;
+            let weights = i8_table(bytes, we, 4 * hidden, row_len, TensorKind::LstmWeights)?;
+            let pe = get(2 + 2 * k, TensorKind::LstmRowParams)?;
+            let rows: &[LstmRowParams] =
+                i32_table(bytes, pe, 4 * hidden, 4, TensorKind::LstmRowParams)?;
+            if rows.iter().any(|r| !(1..=62).contains(&r.shift)) {
+                return Err(BlobError::QuantParam(TensorKind::LstmRowParams));
+            }
+            *l = LstmTensors {
+                inputs,
+                hidden,
+                hh_offset,
+                row_len,
+                cell_frac_bits: config.cell_frac_bits[k] as u32,
+                weights,
+                rows,
+            };
+            dense_len += pad4(hidden);
+        }
+        let weights = i8_table(
+            bytes,
+            get(5, TensorKind::DenseWeights)?,
+            2,
+            dense_len,
+            TensorKind::DenseWeights,
+        )?;
+        let rows: &[DenseRowParams] = i32_table(
+            bytes,
+            get(6, TensorKind::DenseRowParams)?,
+            2,
+            3,
+            TensorKind::DenseRowParams,
+        )?;
+        if rows.iter().any(|r| !(1..=62).contains(&r.shift)) {
+            return Err(BlobError::QuantParam(TensorKind::DenseRowParams));
+        }
+        Ok(Self {
+            config,
+            crc: stored,
+            len: total,
+            norm,
+            lstm,
+            dense: DenseTensors {
+                row_len: dense_len,
+                weights,
+                rows,
+            },
+        })
+    }
+
+    /// The LSTMs the variant uses.
+    pub fn lstms(&self) -> &[LstmTensors<'a>] {
+        &self.lstm[..self.config.variant.lstm_count()]
+    }
+}
+
+fn i8_table<'a>(
+    bytes: &'a [u8],
+    e: DirEntry,
+    rows: usize,
+    cols: usize,
+    kind: TensorKind,
+) -> Result<&'a [i8], BlobError> {
+    if e.dtype != dtype::I8 || e.rows != rows || e.cols != cols || e.len != rows * cols {
+        return Err(BlobError::TensorShape(kind));
+    }
+    let raw = bytes
+        .get(e.offset..e.offset + e.len)
+        .ok_or(BlobError::TensorOutOfBounds(kind))?;
+    Ok(bytemuck::cast_slice(raw))
+}
+
+fn i32_table<'a, T: Pod>(
+    bytes: &'a [u8],
+    e: DirEntry,
+    rows: usize,
+    cols: usize,
+    kind: TensorKind,
+) -> Result<&'a [T], BlobError> {
+    if e.dtype != dtype::I32
+        || e.rows != rows
+        || e.cols != cols
+        || e.len != rows * cols * 4
+        || core::mem::size_of::<T>() != cols * 4
+    {
+        return Err(BlobError::TensorShape(kind));
+    }
+    let raw = bytes
+        .get(e.offset..e.offset + e.len)
+        .ok_or(BlobError::TensorOutOfBounds(kind))?;
+    bytemuck::try_cast_slice(raw).map_err(|_| BlobError::Misaligned)
+}
+
+fn parse_config(b: &[u8]) -> Result<ModelConfig, BlobError> {
+    let variant = Variant::from_u8(b[16]).ok_or(BlobError::UnknownVariant(b[16]))?;
+    let flag_bits = b[17];
+    if flag_bits & !flags::KNOWN != 0 || u16_at(b, 50) != 0 {
+        return Err(BlobError::UnknownField);
+    }
+    let lstm_count = b[18] as usize;
+    let input_unit = match b[19] {
+        0 => InputUnit::MilliNewton,
+        1 => InputUnit::Counts,
+        _ => return Err(BlobError::UnknownField),
+    };
+    let sample_rate_mhz = u32_at(b, 20);
+    let input_offset = u32_at(b, 24) as i32;
+    let input_full_scale = u32_at(b, 28) as i32;
+    let shape = match WindowShape::try_from(b[35]) {
+        Ok(s) => s,
+        Err(_) if !variant.uses_bands() => WindowShape::Rectangular,
+        Err(e) => return Err(BlobError::Stft(e)),
+    };
+    let stft = StftConfig {
+        window_len: b[32],
+        first_bin: b[33],
+        n_bins: b[34],
+        shape,
+    };
+    let threshold_q15 = u16_at(b, 36);
+    let raise_after = b[38];
+    let clear_after = b[39];
+    let hidden = [u16_at(b, 40), u16_at(b, 42)];
+    let inputs = [b[44], b[45]];
+    let cell_frac_bits = [b[46], b[47]];
+    let mut name = [0u8; 12];
+    name.copy_from_slice(&b[52..64]);
+
+    let config = ModelConfig {
+        model_id: u32_at(b, 12),
+        name,
+        variant,
+        force_diff: flag_bits & flags::FORCE_DIFF != 0,
+        sample_rate_mhz,
+        input_unit,
+        input_offset,
+        input_full_scale,
+        stft,
+        hidden,
+        cell_frac_bits,
+        threshold_q15,
+        raise_after,
+        clear_after,
+    };
+
+    if variant.uses_bands() {
+        stft.validate().map_err(BlobError::Stft)?;
+    } else if b[32..36] != [0, 0, 0, 0] {
+        return Err(BlobError::InconsistentSizes);
+    }
+    if sample_rate_mhz == 0 || input_full_scale <= 0 {
+        return Err(BlobError::BadSetting);
+    }
+    if threshold_q15 == 0 || threshold_q15 > i16::MAX as u16 || raise_after == 0 || clear_after == 0
+    {
+        return Err(BlobError::BadSetting);
+    }
+    if lstm_count != variant.lstm_count() {
+        return Err(BlobError::InconsistentSizes);
+    }
+    for k in 0..2 {
+        let used = k < lstm_count;
+        let h = hidden[k] as usize;
+        let i = inputs[k] as usize;
+        if used {
+            if h > MAX_HIDDEN || i > MAX_INPUT {
+                return Err(BlobError::OverBounds);
+            }
+            if h == 0 || i == 0 || i != config.lstm_inputs(k) {
+                return Err(BlobError::InconsistentSizes);
+            }
+            if !(1..=15).contains(&cell_frac_bits[k]) {
+                return Err(BlobError::QuantParam(TensorKind::LstmRowParams));
+            }
+        } else if h != 0 || i != 0 || cell_frac_bits[k] != 0 {
+            return Err(BlobError::InconsistentSizes);
+        }
+    }
+    Ok(config)
+}
+
+/// The tensors of a blob in host memory, for the writer.
+#[cfg(any(test, feature = "std"))]
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlobTensors {
+    /// Feature normalisation rows.
+    pub norm: Vec<FeatureNorm>,
+    /// Per LSTM: int8 weights (4H × row_len, padding zero) and row parameters.
+    pub lstm: Vec<(Vec<i8>, Vec<LstmRowParams>)>,
+    /// Dense int8 weights (2 × row_len, padding zero) and row parameters.
+    pub dense: (Vec<i8>, Vec<DenseRowParams>),
+}
+
+/// A blob in a 4-byte aligned host buffer, as flash would hold it.
+#[cfg(any(test, feature = "std"))]
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct AlignedBlob {
+    words: Vec<u32>,
+    len: usize,
+}
+
+#[cfg(any(test, feature = "std"))]
+impl AlignedBlob {
+    /// Copies bytes into an aligned buffer.
+    pub fn new(bytes: &[u8]) -> Self {
+        let mut words = vec![0u32; bytes.len().div_ceil(4)];
+        bytemuck::cast_slice_mut::<u32, u8>(&mut words)[..bytes.len()].copy_from_slice(bytes);
+        Self {
+            words,
+            len: bytes.len(),
+        }
+    }
+    /// The blob's bytes, 4-byte aligned.
+    pub fn as_bytes(&self) -> &[u8] {
+        &bytemuck::cast_slice::<u32, u8>(&self.words)[..self.len]
+    }
+    /// Parses the blob.
+    pub fn parse(&self) -> Result<ModelBlob<'_>, BlobError> {
+        ModelBlob::parse(self.as_bytes())
+    }
+}
+
+/// Serialises a model into blob format v1. The only writer of the format.
+#[cfg(any(test, feature = "std"))]
+pub fn write_blob(config: &ModelConfig, tensors: &BlobTensors) -> Vec<u8> {
+    let lstm_count = config.variant.lstm_count();
+    let mut h = Vec::with_capacity(HEADER_LEN);
+    h.extend_from_slice(&MAGIC);
+    h.extend_from_slice(&VERSION.to_le_bytes());
+    h.extend_from_slice(&(HEADER_LEN as u16).to_le_bytes());
+    h.extend_from_slice(&0u32.to_le_bytes()); // total length, patched below
+    h.extend_from_slice(&config.model_id.to_le_bytes());
+    h.push(config.variant as u8);
+    h.push(if config.force_diff {
+        flags::FORCE_DIFF
+    } else {
+        0
+    });
+    h.push(lstm_count as u8);
+    h.push(config.input_unit as u8);
+    h.extend_from_slice(&config.sample_rate_mhz.to_le_bytes());
+    h.extend_from_slice(&config.input_offset.to_le_bytes());
+    h.extend_from_slice(&config.input_full_scale.to_le_bytes());
+    if config.variant.uses_bands() {
+        let s = config.stft;
+        h.extend_from_slice(&[s.window_len, s.first_bin, s.n_bins, s.shape as u8]);
+    } else {
+        h.extend_from_slice(&[0; 4]);
+    }
+    h.extend_from_slice(&config.threshold_q15.to_le_bytes());
+    h.push(config.raise_after);
+    h.push(config.clear_after);
+    for k in 0..2 {
+        let v = if k < lstm_count { config.hidden[k] } else { 0 };
+        h.extend_from_slice(&v.to_le_bytes());
+    }
+    for k in 0..2 {
+        h.push(if k < lstm_count {
+            config.lstm_inputs(k) as u8
+        } else {
+            0
+        });
+    }
+    for k in 0..2 {
+        h.push(if k < lstm_count {
+            config.cell_frac_bits[k]
+        } else {
+            0
+        });
+    }
+    let tensor_count = 3 + 2 * lstm_count;
+    h.extend_from_slice(&(tensor_count as u16).to_le_bytes());
+    h.extend_from_slice(&0u16.to_le_bytes());
+    h.extend_from_slice(&config.name);
+    debug_assert_eq!(h.len(), HEADER_LEN);
+
+    // (kind, index, dtype, rows, cols, bytes)
+    let mut items: Vec<(TensorKind, u8, u8, usize, usize, Vec<u8>)> = Vec::new();
+    items.push((
+        TensorKind::FeatureNorm,
+        0,
+        dtype::I32,
+        tensors.norm.len(),
+        3,
+        bytemuck::cast_slice(&tensors.norm).to_vec(),
+    ));
+    for (k, (w, p)) in tensors.lstm.iter().enumerate() {
+        let rows = p.len();
+        let cols = if rows == 0 { 0 } else { w.len() / rows };
+        items.push((
+            TensorKind::LstmWeights,
+            k as u8,
+            dtype::I8,
+            rows,
+            cols,
+            bytemuck::cast_slice(w).to_vec(),
+        ));
+        items.push((
+            TensorKind::LstmRowParams,
+            k as u8,
+            dtype::I32,
+            rows,
+            4,
+            bytemuck::cast_slice(p).to_vec(),
+        ));
+    }
+    let (dw, dp) = &tensors.dense;
+    items.push((
+        TensorKind::DenseWeights,
+        0,
+        dtype::I8,
+        2,
+        dw.len() / 2,
+        bytemuck::cast_slice(dw).to_vec(),
+    ));
+    items.push((
+        TensorKind::DenseRowParams,
+        0,
+        dtype::I32,
+        dp.len(),
+        3,
+        bytemuck::cast_slice(dp).to_vec(),
+    ));
+
+    let mut out = h;
+    let dir_start = out.len();
+    out.resize(dir_start + items.len() * DIR_ENTRY_LEN, 0);
+    for (i, (kind, index, dt, rows, cols, data)) in items.iter().enumerate() {
+        let offset = pad4(out.len());
+        out.resize(offset, 0);
+        out.extend_from_slice(data);
+        let e = &mut out[dir_start + i * DIR_ENTRY_LEN..dir_start + (i + 1) * DIR_ENTRY_LEN];
+        e[0] = *kind as u8;
+        e[1] = *index;
+        e[2] = *dt;
+        e[3] = 0;
+        e[4..6].copy_from_slice(&(*rows as u16).to_le_bytes());
+        e[6..8].copy_from_slice(&(*cols as u16).to_le_bytes());
+        e[8..12].copy_from_slice(&(offset as u32).to_le_bytes());
+        e[12..16].copy_from_slice(&(data.len() as u32).to_le_bytes());
+    }
+    let body = pad4(out.len());
+    out.resize(body, 0);
+    let total = (body + CRC_LEN) as u32;
+    out[8..12].copy_from_slice(&total.to_le_bytes());
+    let crc = CRC32.checksum(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out
+}

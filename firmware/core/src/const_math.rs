@@ -136,15 +136,24 @@ mod tests {
     fn matches_libm_to_1e_13() {
         for i in -400..=400 {
             let x = i as f64 * 0.05;
-            assert!((exp(x) - x.exp()).abs() <= 1e-13 * x.exp().max(1.0), "exp {x}");
-            assert!((sigmoid(x) - 1.0 / (1.0 + (-x).exp())).abs() < 1e-14, "sigmoid {x}");
+            assert!(
+                (exp(x) - x.exp()).abs() <= 1e-13 * x.exp().max(1.0),
+                "exp {x}"
+            );
+            assert!(
+                (sigmoid(x) - 1.0 / (1.0 + (-x).exp())).abs() < 1e-14,
+                "sigmoid {x}"
+            );
             assert!((tanh(x) - x.tanh()).abs() < 1e-14, "tanh {x}");
         }
         for n in 1..=64u32 {
             for m in 0..2 * n {
                 let th = 2.0 * std::f64::consts::PI * m as f64 / n as f64;
                 let (c, s) = cos_sin_turn(m, n);
-                assert!((c - th.cos()).abs() < 1e-14 && (s - th.sin()).abs() < 1e-14, "{m}/{n}");
+                assert!(
+                    (c - th.cos()).abs() < 1e-14 && (s - th.sin()).abs() < 1e-14,
+                    "{m}/{n}"
+                );
             }
         }
         assert_eq!(round(2.5), 3.0);

@@ -1,1 +1,121 @@
-//! (in progress)
+//! The quantized LSTM cell, "16x8" as in TFLite Micro / CMSIS-NN, with per-row weight scales.
+//!
+//! Per step, for gate rows in PyTorch's order i, f, g, o (rows r = gate·H + j):
+//!
+//! ```text
+//! z_r   = requant_r(Σ W_ih[r]·x, Σ W_hh[r]·h) + b_r     Q3.12, saturated to [-8, 8)
+//! i,f,o = σ(z)                                          Q0.15 (lookup + interpolation)
+//! g     = tanh(z)                                       Q0.15
+//! c'    = f·c + i·g                                     Q(15-C).C, C from the blob
+//! h'    = o·tanh(c')                                    Q0.15
+//! ```
+//!
+//! Weights are int8, symmetric, one scale per row for W_ih and one for W_hh; x is int16 Q3.12,
+//! h is int16 Q0.15; the two dot products accumulate in `i32` and meet in `i64` at the row's
+//! requantisation ([`LstmRowParams`]). All rounding is to nearest, so the host and the
+//! Cortex-M4 compute the same bits.
+
+use crate::MAX_HIDDEN;
+use crate::activation::{sigmoid, tanh};
+use crate::blob::{LstmRowParams, LstmTensors};
+use crate::dsp::dot_i8_i16;
+use crate::fixed::{round_shift_i32, round_shift_i64, sat_i16, sat_i16_wide};
+
+/// One LSTM's recurrent state for one channel.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LstmState {
+    /// Hidden state h, Q0.15. Entries past the model's H stay 0 (the padded kernel relies on it).
+    pub h: [i16; MAX_HIDDEN],
+    /// Cell state c, Q(15-C).C with C = the blob's `cell_frac_bits`.
+    pub c: [i16; MAX_HIDDEN],
+}
+
+impl LstmState {
+    /// Zero state (the state PyTorch starts from).
+    pub const fn new() -> Self {
+        Self {
+            h: [0; MAX_HIDDEN],
+            c: [0; MAX_HIDDEN],
+        }
+    }
+    /// Back to zero (grasp start).
+    pub fn reset(&mut self) {
+        *self = Self::new();
+    }
+}
+
+impl Default for LstmState {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Gate pre-activation of one row, Q3.12.
+#[inline(always)]
+fn requant(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
+    // i64: acc_x < 2^26 and acc_h < 2^29 times a multiplier < 2^31 stay below 2^61.
+    let z = acc_x as i64 * p.mx as i64 + acc_h as i64 * p.mh as i64;
+    sat_i16_wide(round_shift_i64(z, p.shift as u32) + p.bias_q12 as i64)
+}
+
+/// Cell state Q(15-C).C → Q3.12 for tanh, saturated (tanh is flat beyond ±8 anyway).
+#[inline(always)]
+fn cell_to_q12(c: i16, cell_frac_bits: u32) -> i16 {
+    if cell_frac_bits > 12 {
+        // Drop the extra fractional bits, rounded.
+        round_shift_i32(c as i32, cell_frac_bits - 12) as i16
+    } else {
+        // Fewer fractional bits: scale up; C >= 1 so the shift is at most 11 and fits i32.
+        sat_i16((c as i32) << (12 - cell_frac_bits))
+    }
+}
+
+/// Advances `state` by one step with input `x` (Q3.12, `t.inputs` values).
+///
+/// `t` comes from a validated [`crate::blob::ModelBlob`], so its sizes are within the static
+/// bounds; slices are still taken with checked ranges, so a wrong size can only give wrong
+/// numbers, never a panic.
+pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
+    let hn = t.hidden.min(MAX_HIDDEN);
+    let x = &x[..t.inputs.min(x.len())];
+    // Gate activations, Q0.15, in order i, f, g, o.
+    let mut gates = [0i16; 4 * MAX_HIDDEN];
+    for (r, (row, p)) in t
+        .weights
+        .chunks_exact(t.row_len.max(1))
+        .zip(t.rows)
+        .take(4 * hn)
+        .enumerate()
+    {
+        let acc_x = dot_i8_i16(&row[..t.inputs.min(row.len())], x);
+        let acc_h = dot_i8_i16(row.get(t.hh_offset..).unwrap_or(&[]), &state.h[..hn]);
+        let z = requant(p, acc_x, acc_h);
+        // Rows 2H..3H are the cell candidate g (tanh); the others are sigmoid gates.
+        gates[r] = if r / hn.max(1) == 2 {
+            tanh(z)
+        } else {
+            sigmoid(z)
+        };
+    }
+    let cb = t.cell_frac_bits;
+    // i·g is Q0.30; shifting by 30 - C puts it in the cell's Q(15-C).C.
+    let ig_shift = 30 - cb.clamp(1, 15);
+    for j in 0..hn {
+        let (i, f, g, o) = (
+            gates[j],
+            gates[hn + j],
+            gates[2 * hn + j],
+            gates[3 * hn + j],
+        );
+        // f·c: Q0.15 × Q(15-C).C, >> 15 keeps the cell's format.
+        let fc = round_shift_i32(f as i32 * state.c[j] as i32, 15);
+        let ig = round_shift_i32(i as i32 * g as i32, ig_shift);
+        let c = sat_i16(fc + ig);
+        state.c[j] = c;
+        // o·tanh(c): Q0.15 × Q0.15 >> 15 = Q0.15.
+        state.h[j] = sat_i16(round_shift_i32(
+            o as i32 * tanh(cell_to_q12(c, cb)) as i32,
+            15,
+        ));
+    }
+}

@@ -1,1 +1,142 @@
-//! (in progress)
+//! The whole per-channel pipeline over a parsed blob: sample → features → LSTM(s) → decision.
+
+use crate::MAX_INPUT;
+use crate::blob::{BlobError, ModelBlob, ModelConfig};
+use crate::decision::{DecisionConfig, DecisionState, p_unstable};
+use crate::features::stft::StftPlan;
+use crate::features::{FeatureLayout, FeatureState, normalise, raw_features};
+use crate::lstm::{self, LstmState};
+use crate::sample::InputScale;
+
+/// A model ready to run: the parsed blob plus the shared STFT plan.
+#[derive(Clone, Debug)]
+pub struct Model<'a> {
+    blob: ModelBlob<'a>,
+    plan: Option<StftPlan>,
+    layout: FeatureLayout,
+    scale: InputScale,
+    decision: DecisionConfig,
+}
+
+/// Everything one sensor channel remembers between steps (about 1.1 KiB with two LSTMs).
+#[derive(Clone, Debug, Default)]
+pub struct ChannelState {
+    /// STFT window and previous sample.
+    pub features: FeatureState,
+    /// LSTM states (the second is used by the dual variant only).
+    pub lstm: [LstmState; 2],
+    /// Flag hysteresis.
+    pub decision: DecisionState,
+}
+
+impl ChannelState {
+    /// A state as after reset.
+    pub const fn new() -> Self {
+        Self {
+            features: FeatureState::new(),
+            lstm: [LstmState::new(), LstmState::new()],
+            decision: DecisionState {
+                unstable: false,
+                run_above: 0,
+                run_below: 0,
+            },
+        }
+    }
+    /// Forgets everything (grasp start).
+    pub fn reset(&mut self) {
+        *self = Self::new();
+    }
+}
+
+/// What one step produces for one channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StepOutput {
+    /// p(unstable), Q0.15.
+    pub p_unstable_q15: i16,
+    /// The flag after threshold and hysteresis.
+    pub unstable: bool,
+}
+
+impl<'a> Model<'a> {
+    /// Parses and validates `bytes` (4-byte aligned) and prepares the STFT plan.
+    pub fn from_bytes(bytes: &'a [u8]) -> Result<Self, BlobError> {
+        Self::new(ModelBlob::parse(bytes)?)
+    }
+
+    /// Prepares a parsed blob.
+    pub fn new(blob: ModelBlob<'a>) -> Result<Self, BlobError> {
+        let config = blob.config;
+        let plan = if config.variant.uses_bands() {
+            Some(StftPlan::new(config.stft).map_err(BlobError::Stft)?)
+        } else {
+            None
+        };
+        Ok(Self {
+            blob,
+            plan,
+            layout: FeatureLayout::of(&config),
+            scale: InputScale::of(&config),
+            decision: DecisionConfig::of(&config),
+        })
+    }
+
+    /// Header fields.
+    pub fn config(&self) -> &ModelConfig {
+        &self.blob.config
+    }
+
+    /// The parsed blob.
+    pub fn blob(&self) -> &ModelBlob<'a> {
+        &self.blob
+    }
+
+    /// The decision settings in force.
+    pub fn decision(&self) -> DecisionConfig {
+        self.decision
+    }
+
+    /// Replaces the decision settings (e.g. a threshold sent by the hand controller).
+    pub fn set_decision(&mut self, decision: DecisionConfig) {
+        self.decision = decision;
+    }
+
+    /// Runs one raw sample (sensor units) through the channel's pipeline.
+    pub fn step(&self, state: &mut ChannelState, raw: i32) -> StepOutput {
+        let p = self.p_unstable(state, self.scale.to_q15(raw));
+        let unstable = self.decision.update(&mut state.decision, p);
+        StepOutput {
+            p_unstable_q15: p,
+            unstable,
+        }
+    }
+
+    /// Features, LSTM(s) and dense layer for one Q1.15 sample; returns p(unstable) in Q0.15.
+    pub fn p_unstable(&self, state: &mut ChannelState, x_q15: i16) -> i16 {
+        let mut v = [0i16; MAX_INPUT];
+        raw_features(
+            self.layout,
+            self.plan.as_ref(),
+            &mut state.features,
+            x_q15,
+            &mut v,
+        );
+        let n = self.layout.len().min(MAX_INPUT);
+        normalise(self.blob.norm, &mut v[..n]);
+        let lstms = self.blob.lstms();
+        match lstms {
+            [only] => {
+                lstm::step(only, &mut state.lstm[0], &v[..n]);
+                p_unstable(&self.blob.dense, &[&state.lstm[0].h[..only.hidden]])
+            }
+            [a, b] => {
+                let split = a.inputs.min(n);
+                let [sa, sb] = &mut state.lstm;
+                lstm::step(a, sa, &v[..split]);
+                lstm::step(b, sb, &v[split..n]);
+                p_unstable(&self.blob.dense, &[&sa.h[..a.hidden], &sb.h[..b.hidden]])
+            }
+            _ => 0,
+        }
+    }
+}

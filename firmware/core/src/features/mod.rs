@@ -1,5 +1,117 @@
-//! Features: what the LSTM sees at each step (in progress).
+//! Features: what the LSTM sees at each step, in feature order `[force, d(t), bands…]`.
+//!
+//! - force x(t): the sample in Q1.15;
+//! - d(t) = x(t) - x(t-1) (paper eq. 3), Q1.15 saturated to [-1, 1), optional;
+//! - STFT band magnitudes |X_k| / Σw, Q1.15 ([`stft`]).
+//!
+//! Each feature is then normalised, `(v - μ) / σ` in Q3.12 (saturated at ±8σ), with μ and σ
+//! from training; the normalisation is part of the model so that int16 inputs keep their
+//! resolution whatever the feature's natural scale (band magnitudes are ~100× smaller than the
+//! force). [`Variant::DualLstm`](crate::blob::Variant) feeds `[force, d(t)]` to its first LSTM
+//! and the bands to its second.
+
 pub mod stft;
+
+use crate::MAX_INPUT;
+use crate::blob::{FeatureNorm, ModelConfig};
+use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
+use stft::{StftPlan, StftState};
 
 /// Most STFT bands a model may use.
 pub const MAX_BANDS: usize = 16;
+
+/// Which features a model uses, derived from its header.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FeatureLayout {
+    /// The force sample is a feature.
+    pub force: bool,
+    /// d(t) is a feature.
+    pub diff: bool,
+    /// Number of STFT bands.
+    pub bands: usize,
+}
+
+impl FeatureLayout {
+    /// The layout a model's header describes.
+    pub fn of(config: &ModelConfig) -> Self {
+        Self {
+            force: config.variant.uses_force(),
+            diff: config.force_diff,
+            bands: config.band_features(),
+        }
+    }
+    /// Features per step.
+    pub fn len(&self) -> usize {
+        self.force as usize + self.diff as usize + self.bands
+    }
+    /// Whether there are no features at all (never for a valid model).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Per-channel feature state: the STFT window and the previous sample for d(t).
+#[derive(Clone, Debug)]
+pub struct FeatureState {
+    /// STFT ring buffer.
+    pub stft: StftState,
+    /// x(t-1), Q1.15; 0 after reset.
+    pub prev: i16,
+}
+
+impl FeatureState {
+    /// A state as after `reset`.
+    pub const fn new() -> Self {
+        Self {
+            stft: StftState::new(),
+            prev: 0,
+        }
+    }
+    /// Forgets the past (grasp start).
+    pub fn reset(&mut self) {
+        self.stft.reset();
+        self.prev = 0;
+    }
+}
+
+impl Default for FeatureState {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Computes the raw features of one step (Q1.15 each) into `raw[..layout.len()]`.
+/// `plan` is `None` when the layout has no bands.
+#[inline]
+pub fn raw_features(
+    layout: FeatureLayout,
+    plan: Option<&StftPlan>,
+    state: &mut FeatureState,
+    x_q15: i16,
+    raw: &mut [i16; MAX_INPUT],
+) {
+    let mut n = 0;
+    if layout.force {
+        raw[n] = x_q15;
+        n += 1;
+    }
+    if layout.diff {
+        raw[n] = sat_i16(x_q15 as i32 - state.prev as i32);
+        n += 1;
+    }
+    state.prev = x_q15;
+    if let Some(plan) = plan {
+        let end = (n + layout.bands).min(MAX_INPUT);
+        plan.step(&mut state.stft, x_q15, &mut raw[n..end]);
+    }
+}
+
+/// Normalises features in place: Q1.15 → Q3.12 `(v - μ) / σ`, saturated.
+#[inline]
+pub fn normalise(norm: &[FeatureNorm], v: &mut [i16]) {
+    for (x, n) in v.iter_mut().zip(norm) {
+        // i64: the difference spans 17 bits and the gain up to 31; shift validated 1..=62 at parse.
+        let d = (*x as i64 - n.mean_q15 as i64) * n.gain as i64;
+        *x = sat_i16_wide(round_shift_i64(d, n.shift as u32));
+    }
+}
