@@ -3,7 +3,7 @@
 
 use rand::{Rng, SeedableRng};
 use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
-use slipguard_core::features::stft::StftConfig;
+use slipguard_core::features::stft::{StftConfig, WindowShape};
 use slipguard_core::float::FloatModel;
 
 /// Header of a fingertip-force model as the paper sets it up (16.7 Hz, 0..10 000 mN).
@@ -18,7 +18,11 @@ pub fn config(variant: Variant, hidden: u16, force_diff: bool) -> ModelConfig {
         input_unit: InputUnit::MilliNewton,
         input_offset: 0,
         input_full_scale: 10_000,
-        stft: StftConfig::PAPER,
+        stft: if variant.uses_bands() {
+            StftConfig::PAPER
+        } else {
+            StftConfig { window_len: 0, first_bin: 0, n_bins: 0, shape: WindowShape::Rectangular }
+        },
         hidden: [hidden, if dual { hidden } else { 0 }],
         cell_frac_bits: [0, 0],
         threshold_q15: 16_384,
