@@ -1,0 +1,94 @@
+//! Benchmark harness: semihosting output, result checks and the exit code.
+//!
+//! - [`bench`] measures a closure with [`crate::insns::measure`] and prints one line
+//!   `bench <name>: <n> insns/iter (<iterations> iterations, <total> insns)`.
+//! - [`check_equal`] compares a result with its expected value, prints `ok`/`MISMATCH` and records
+//!   mismatches; [`finish`] exits QEMU with 0 if there were none and 1 otherwise.
+//! - The `#[panic_handler]` prints the panic and exits with 101 (like a failing Rust test).
+//!
+//! Exit codes go to the host through semihosting (`-semihosting-config enable=on,target=native`)
+//! and become `qemu-system-arm`'s own exit status.
+
+use core::fmt::Debug;
+use core::sync::atomic::{AtomicU32, Ordering};
+use cortex_m_semihosting::hprintln;
+
+use crate::insns;
+
+static CHECKS: AtomicU32 = AtomicU32::new(0);
+static MISMATCHES: AtomicU32 = AtomicU32::new(0);
+
+/// Exit status after a panic.
+const PANIC_EXIT: i32 = 101;
+
+/// Measures `iterations` calls of `f` and prints `insns/iter`. Returns the instructions per
+/// iteration (rounded down). Keep `f`'s inputs and outputs behind `core::hint::black_box` so
+/// the compiler cannot hoist or drop the work.
+pub fn bench<F: FnMut()>(name: &str, iterations: u32, f: F) -> u64 {
+    let total = insns::measure(iterations, f);
+    let per_iter = total / u64::from(iterations.max(1));
+    hprintln!(
+        "bench {}: {} insns/iter ({} iterations, {} insns)",
+        name,
+        per_iter,
+        iterations,
+        total
+    );
+    per_iter
+}
+
+/// Records and prints whether `got == want`. A mismatch makes [`finish`] exit with 1.
+pub fn check_equal<T: PartialEq + Debug + ?Sized>(name: &str, got: &T, want: &T) -> bool {
+    CHECKS.fetch_add(1, Ordering::Relaxed);
+    if got == want {
+        hprintln!("check {}: ok", name);
+        true
+    } else {
+        MISMATCHES.fetch_add(1, Ordering::Relaxed);
+        hprintln!(
+            "check {}: MISMATCH\n  got:  {:?}\n  want: {:?}",
+            name,
+            got,
+            want
+        );
+        false
+    }
+}
+
+/// Number of mismatches recorded so far by [`check_equal`].
+pub fn mismatches() -> u32 {
+    MISMATCHES.load(Ordering::Relaxed)
+}
+
+/// Prints a summary and ends the QEMU run: exit 0 if every check passed, 1 otherwise.
+pub fn finish() -> ! {
+    let checks = CHECKS.load(Ordering::Relaxed);
+    let bad = mismatches();
+    if bad == 0 {
+        hprintln!("result: ok ({} checks)", checks);
+        exit(0)
+    } else {
+        hprintln!("result: FAILED ({} of {} checks mismatched)", bad, checks);
+        exit(1)
+    }
+}
+
+/// Ends the QEMU run with `code` as its exit status (semihosting SYS_EXIT_EXTENDED, which
+/// carries any code; plain SYS_EXIT only tells success from failure).
+pub fn exit(code: i32) -> ! {
+    const SYS_EXIT_EXTENDED: usize = 0x20;
+    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x2_0026;
+    let block: [usize; 2] = [ADP_STOPPED_APPLICATION_EXIT, code as usize];
+    // SAFETY: a semihosting call with a valid two-word parameter block; QEMU exits here.
+    unsafe { cortex_m_semihosting::syscall(SYS_EXIT_EXTENDED, &block) };
+    // Only reached when semihosting is not enabled (e.g. on hardware): stop here.
+    loop {
+        cortex_m::asm::bkpt();
+    }
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    hprintln!("PANIC: {}", info);
+    exit(PANIC_EXIT)
+}
