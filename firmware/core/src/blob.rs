@@ -544,7 +544,7 @@ impl<'a> ModelBlob<'a> {
             {
                 return Err(BlobError::TensorOutOfBounds(kind));
             }
-            if entry.offset % 4 != 0 {
+            if !entry.offset.is_multiple_of(4) {
                 return Err(BlobError::Misaligned);
             }
             slots[slot] = Some(entry);
@@ -561,7 +561,7 @@ impl<'a> ModelBlob<'a> {
                 TensorKind::DenseRowParams,
             ];
             for (slot, kind) in kinds.iter().enumerate() {
-                let needed = slot < 3 || slot >= 5 || lstm_count == 2;
+                let needed = !(3..5).contains(&slot) || lstm_count == 2;
                 if needed && slots[slot].is_none() {
                     return Err(BlobError::MissingTensor(*kind));
                 }
@@ -656,13 +656,13 @@ impl<'a> ModelBlob<'a> {
     }
 }
 
-fn i8_table<'a>(
-    bytes: &'a [u8],
+fn i8_table(
+    bytes: &[u8],
     e: DirEntry,
     rows: usize,
     cols: usize,
     kind: TensorKind,
-) -> Result<&'a [i8], BlobError> {
+) -> Result<&[i8], BlobError> {
     if e.dtype != dtype::I8 || e.rows != rows || e.cols != cols || e.len != rows * cols {
         return Err(BlobError::TensorShape(kind));
     }
@@ -672,13 +672,13 @@ fn i8_table<'a>(
     Ok(bytemuck::cast_slice(raw))
 }
 
-fn i32_table<'a, T: Pod>(
-    bytes: &'a [u8],
+fn i32_table<T: Pod>(
+    bytes: &[u8],
     e: DirEntry,
     rows: usize,
     cols: usize,
     kind: TensorKind,
-) -> Result<&'a [T], BlobError> {
+) -> Result<&[T], BlobError> {
     if e.dtype != dtype::I32
         || e.rows != rows
         || e.cols != cols
@@ -888,7 +888,7 @@ pub fn write_blob(config: &ModelConfig, tensors: &BlobTensors) -> Vec<u8> {
     ));
     for (k, (w, p)) in tensors.lstm.iter().enumerate() {
         let rows = p.len();
-        let cols = if rows == 0 { 0 } else { w.len() / rows };
+        let cols = w.len().checked_div(rows).unwrap_or(0);
         items.push((
             TensorKind::LstmWeights,
             k as u8,

@@ -13,8 +13,8 @@ pub const PI: f64 = core::f64::consts::PI;
 pub const fn exp(x: f64) -> f64 {
     // ln2 split into a high part with trailing zero bits (k·LN2_HI is exact for |k| < 2^11)
     // and the remainder (fdlibm's constants).
-    const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-1;
-    const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10;
+    const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
+    const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
     let kf = round(x / core::f64::consts::LN_2);
     let r = (x - kf * LN2_HI) - kf * LN2_LO;
     // 22 terms of the series reach f64 epsilon for |r| <= 0.35.

@@ -1,9 +1,13 @@
-//! Instruction-count benchmarks of slipguard-core on a Cortex-M4F emulated by QEMU
-//! (`-M mps2-an386 -icount shift=0`). Output goes to the host through semihosting; the exit code
-//! is 0 when every `check_equal` passed, 1 on a mismatch, 101 on a panic.
+//! Instruction-count benchmark and bit-exact check of slipguard-core on a Cortex-M4F emulated by
+//! QEMU (`-M mps2-an386 -icount shift=0`). Output goes to the host through semihosting; the exit
+//! code is 0 when every check passed, 1 on a mismatch, 101 on a panic.
 //!
-//! Modules: [`insns`] (SysTick instruction counter, `measure`) and [`harness`] (output, checks,
-//! exit codes, panic handler). Add kernels as `harness::bench(...)` + `harness::check_equal(...)`.
+//! It runs the golden vectors of `firmware/core/tests/fixtures/bench/` (a paper-sized variant
+//! (c) model, hidden 128, and a 200-step force trace): every step's p(unstable), flag and a CRC
+//! of the LSTM state must equal what the host core produced (`expected.bin`, pinned by the
+//! host test `golden_vectors`). Then it counts instructions per channel step and per part.
+//!
+//! Modules: [`insns`] (SysTick instruction counter) and [`harness`] (output, checks, exit codes).
 #![no_std]
 #![no_main]
 
@@ -13,34 +17,40 @@ mod insns;
 use core::hint::black_box;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::hprintln;
+use slipguard_core::blob::CRC32;
 use slipguard_core::const_math;
+use slipguard_core::decision::p_unstable;
+use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
+use slipguard_core::lstm::{self, LstmState};
+use slipguard_core::model::{ChannelState, Model};
 
-/// Length of the dot products: one row of an LSTM gate matrix at the largest hidden size.
-const N: usize = slipguard_core::MAX_HIDDEN;
+/// The blob must be 4-byte aligned to be read in place, as in the firmware's flash section.
+#[repr(C, align(4))]
+struct Aligned<T: ?Sized>(T);
 
-/// Q15 × Q15 dot product with a 32-bit accumulator, the inner loop of a quantised matrix-vector
-/// product (a stand-in until the LSTM cell can be benchmarked).
-#[inline(never)]
-fn dot_q15(a: &[i16; N], b: &[i16; N]) -> i32 {
-    a.iter().zip(b).fold(0i32, |acc, (&x, &y)| {
-        acc.wrapping_add(i32::from(x) * i32::from(y))
-    })
+static BLOB: &Aligned<[u8]> = &Aligned(*include_bytes!("../../core/tests/fixtures/bench/model.bin"));
+static INPUT: &[u8] = include_bytes!("../../core/tests/fixtures/bench/input.bin");
+static EXPECTED: &[u8] = include_bytes!("../../core/tests/fixtures/bench/expected.bin");
+
+/// Bytes per step in `expected.bin`: p (i16), flag (u8), 0 (u8), CRC-32 of h and c (u32).
+const RECORD: usize = 8;
+
+fn input(i: usize) -> i32 {
+    let b = &INPUT[4 * i..4 * i + 4];
+    i32::from_le_bytes([b[0], b[1], b[2], b[3]])
 }
 
-/// f32 dot product (hardware FPU, sequential accumulation).
-#[inline(never)]
-fn dot_f32(a: &[f32; N], b: &[f32; N]) -> f32 {
-    a.iter().zip(b).fold(0.0, |acc, (&x, &y)| acc + x * y)
-}
-
-/// Deterministic test vectors from a small LCG, the same on every target: values in ±2^11 so
-/// that 128 products cannot overflow the i32 accumulator (|sum| <= 2^29).
-fn fill_q15(seed: u32) -> [i16; N] {
-    let mut s = seed;
-    core::array::from_fn(|_| {
-        s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-        ((s >> 20) as i16) - 2048
-    })
+/// The same per-step record the host test writes.
+fn record(out: slipguard_core::model::StepOutput, st: &ChannelState) -> [u8; RECORD] {
+    let mut digest = CRC32.digest();
+    for l in &st.lstm {
+        for v in l.h.iter().chain(&l.c) {
+            digest.update(&v.to_le_bytes());
+        }
+    }
+    let p = out.p_unstable_q15.to_le_bytes();
+    let c = digest.finalize().to_le_bytes();
+    [p[0], p[1], out.unstable as u8, 0, c[0], c[1], c[2], c[3]]
 }
 
 #[entry]
@@ -53,82 +63,92 @@ fn main() -> ! {
         insns::overhead_per_iter()
     );
 
-    // Cross-check span for the insncount plugin: markers #1 and #2 bracket a raw measurement,
-    // so the plugin's delta and this SysTick count describe (almost) the same instructions.
-    let mut x = 0u32;
-    insns::marker(1);
-    let raw = insns::measure_raw(10_000, &mut || {
-        x = black_box(x).wrapping_mul(3).wrapping_add(1)
-    });
-    insns::marker(2);
-    hprintln!(
-        "span markers #1..#2: {} insns by SysTick (raw, bookkeeping included)",
-        raw
-    );
-
-    // `--features wrap-check`: a span of ~1.1 G instructions, past the 24-bit counter's wrap at
-    // ~671 M, must cost exactly as much per iteration as the short span above (±40 in total).
-    #[cfg(feature = "wrap-check")]
-    {
-        const LONG: u32 = 50_000_000;
-        let long = insns::measure_raw(LONG, &mut || {
-            x = black_box(x).wrapping_mul(3).wrapping_add(1)
-        });
-        let want = raw / 10_000 * u64::from(LONG);
-        hprintln!(
-            "wrap-check: {} insns over {} iterations, expected {} (±40)",
-            long,
-            LONG,
-            want
-        );
-        harness::check_equal(
-            "wrap-check within one tick",
-            &(long.abs_diff(want) <= 40),
-            &true,
-        );
-    }
-
-    // const_math::exp: soft-float f64 (the M4F FPU is single precision), used for table builds.
-    let mut y = 0.0;
-    harness::bench("const_math::exp(f64)", 100, || {
-        y = const_math::exp(black_box(0.731_25))
-    });
-    harness::check_equal("const_math::exp(0)", &const_math::exp(black_box(0.0)), &1.0);
-    // Evaluated by the compiler (const eval on the host) vs. soft-float on the M4: must be
-    // bit-identical, which is what lets tables be built either way.
+    // Tables built at run time with soft-float f64 must equal the compiler's const evaluation.
     const EXP_CONST: f64 = const_math::exp(0.731_25);
     harness::check_equal(
-        "const_math::exp(0.73125) run time == const eval",
-        &y.to_bits(),
+        "const_math::exp run time == const eval",
+        &const_math::exp(black_box(0.731_25)).to_bits(),
         &EXP_CONST.to_bits(),
     );
 
-    let a = fill_q15(1);
-    let b = fill_q15(2);
-    let want = a
-        .iter()
-        .zip(&b)
-        .map(|(&x, &y)| i64::from(x) * i64::from(y))
-        .sum::<i64>();
-    let mut acc = 0;
-    harness::bench("dot_q15[128] (i32 acc)", 1000, || {
-        acc = dot_q15(black_box(&a), black_box(&b))
-    });
-    harness::check_equal("dot_q15[128]", &i64::from(acc), &want);
-
-    let af: [f32; N] = core::array::from_fn(|i| f32::from(a[i]) / 32768.0);
-    let bf: [f32; N] = core::array::from_fn(|i| f32::from(b[i]) / 32768.0);
-    let mut accf = 0.0;
-    harness::bench("dot_f32[128]", 1000, || {
-        accf = dot_f32(black_box(&af), black_box(&bf))
-    });
-    // f32 rounding makes this inexact: compare with the exact value within a tolerance.
-    let reff = want as f64 / (32768.0 * 32768.0);
-    harness::check_equal(
-        "dot_f32[128] ~ f64 reference",
-        &((accf as f64 - reff).abs() < 1e-4),
-        &true,
+    let model = match Model::from_bytes(&BLOB.0) {
+        Ok(m) => m,
+        Err(e) => {
+            hprintln!("golden model refused: {}", e);
+            harness::check_equal("golden model parses", &false, &true);
+            harness::finish()
+        }
+    };
+    let steps = INPUT.len() / 4;
+    let macs = model.config().macs_per_step() as u64;
+    hprintln!(
+        "model: variant {}, hidden {}, {} MACs per channel step, blob {} bytes",
+        model.config().variant.name(),
+        model.config().hidden[0],
+        macs,
+        BLOB.0.len()
     );
 
+    // 1. Bit-exact check: every step against the host's record.
+    let mut st = ChannelState::new();
+    let mut first_bad = None;
+    for i in 0..steps {
+        let got = record(model.step(&mut st, input(i)), &st);
+        if got[..] != EXPECTED[RECORD * i..RECORD * (i + 1)] && first_bad.is_none() {
+            first_bad = Some(i);
+        }
+    }
+    harness::check_equal("all steps equal the host (first differing step)", &first_bad, &None);
+
+    // 2. Whole channel step: sample → STFT → normalise → LSTM → dense → decision.
+    let mut st = ChannelState::new();
+    let mut i = 0;
+    let step = harness::bench("channel step (variant c, H=128)", steps as u32, || {
+        black_box(model.step(&mut st, black_box(input(i % steps))));
+        i += 1;
+    });
+
+    // 3. Parts, on the same model and inputs.
+    let blob = model.blob();
+    let lstm_t = blob.lstm[0];
+    let mut ls = LstmState::new();
+    let x = [1234i16, -2345, 345, 456, -567, 678, 789, -890, 901, 120, -230];
+    let lstm_insns = harness::bench("LSTM cell step (11 -> 128)", 50, || {
+        lstm::step(black_box(&lstm_t), &mut ls, black_box(&x));
+    });
+    let h = ls.h;
+    harness::bench("dense + softmax (128 -> p)", 200, || {
+        black_box(p_unstable(black_box(&blob.dense), &[black_box(&h[..128])]));
+    });
+    let plan = match StftPlan::new(StftConfig::PAPER) {
+        Ok(p) => p,
+        Err(_) => harness::finish(),
+    };
+    let mut ss = StftState::new();
+    let mut out = [0i16; 10];
+    let mut j = 0u32;
+    harness::bench("STFT step (N=20, 10 bands)", 200, || {
+        j += 1;
+        plan.step(&mut ss, black_box((j.wrapping_mul(2_654_435_761) >> 17) as i16), &mut out);
+        black_box(&out);
+    });
+
+    let lstm_macs = macs - 2 * 128;
+    hprintln!(
+        "summary: {} insns per channel step = {:.3} insns per MAC ({} MACs); LSTM cell alone {:.3} insns per MAC",
+        step,
+        step as f32 / macs as f32,
+        macs,
+        lstm_insns as f32 / lstm_macs as f32
+    );
+    // 16 channels at 16.7 Hz and 40 Hz on a 168 MHz M4, counting one instruction as one cycle
+    // (a lower bound: QEMU models no wait states or pipeline stalls).
+    let frame = (step * 16) as f32;
+    hprintln!(
+        "summary: 16-channel frame {} insns; at 168 MHz: 16.7 Hz -> {:.2} % CPU, 40 Hz -> {:.2} % CPU",
+        step * 16,
+        frame * 16.7 / 168e6 * 100.0,
+        frame * 40.0 / 168e6 * 100.0
+    );
     harness::finish()
 }

@@ -42,7 +42,7 @@ pub fn smooth_force(seed: u64, steps: usize) -> Vec<f32> {
             (
                 rng.random_range(0.5..8.0),
                 rng.random_range(50.0..600.0),
-                rng.random_range(0.0..6.283),
+                rng.random_range(0.0..std::f32::consts::TAU),
             )
         })
         .collect();
@@ -57,7 +57,7 @@ pub fn smooth_force(seed: u64, steps: usize) -> Vec<f32> {
             let tt = t as f32 / fs;
             let vib: f32 = tones
                 .iter()
-                .map(|(f, a, p)| a * (6.283 * f * tt + p).sin())
+                .map(|(f, a, p)| a * (std::f32::consts::TAU * f * tt + p).sin())
                 .sum();
             level + vib + rng.random_range(-30.0..30.0)
         })
