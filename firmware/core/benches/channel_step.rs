@@ -1,7 +1,7 @@
 //! Host benchmark of one channel step, variant (c) (force + 10 STFT bands), hidden 128:
 //! `cargo bench -p slipguard-core --features std --bench channel_step`.
 //! Reports the quantized step, its parts, and the f32 reference for a ratio measured in one run.
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 
 use slipguard_core::blob::AlignedBlob;
@@ -14,7 +14,10 @@ const INPUT: &[u8] = include_bytes!("../tests/fixtures/bench/input.bin");
 fn bench(c: &mut Criterion) {
     let blob = AlignedBlob::new(BLOB);
     let model = Model::from_bytes(blob.as_bytes()).expect("bench model");
-    let input: Vec<i32> = INPUT.chunks_exact(4).map(|b| i32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    let input: Vec<i32> = INPUT
+        .chunks_exact(4)
+        .map(|b| i32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
     let mut g = c.benchmark_group("channel_step_variant_c_h128");
     g.bench_function("quantized step (STFT + LSTM + dense + decision)", |b| {
         let mut st = ChannelState::new();

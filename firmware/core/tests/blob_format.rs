@@ -2,12 +2,15 @@
 mod common;
 
 use slipguard_core::blob::{
-    write_blob, AlignedBlob, BlobError, BlobTensors, DenseRowParams, FeatureNorm, LstmRowParams, ModelBlob,
-    TensorKind, Variant, CRC32, HEADER_LEN,
+    AlignedBlob, BlobError, BlobTensors, CRC32, DenseRowParams, FeatureNorm, HEADER_LEN,
+    LstmRowParams, ModelBlob, TensorKind, Variant, write_blob,
 };
 use slipguard_core::model::{ChannelState, Model};
 
-const GOLDEN: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/golden_blob_v1.hex");
+const GOLDEN: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/fixtures/golden_blob_v1.hex"
+);
 
 /// A small variant (a) model, H = 3, force + d(t), with hand-picked integer tensors.
 fn small() -> (slipguard_core::blob::ModelConfig, BlobTensors) {
@@ -24,24 +27,51 @@ fn small() -> (slipguard_core::blob::ModelConfig, BlobTensors) {
         }
     }
     let rows = (0..12)
-        .map(|r| LstmRowParams { mx: 1_000_000 + r, mh: -2_000_000 - r, bias_q12: 100 * r - 600, shift: 31 })
+        .map(|r| LstmRowParams {
+            mx: 1_000_000 + r,
+            mh: -2_000_000 - r,
+            bias_q12: 100 * r - 600,
+            shift: 31,
+        })
         .collect();
     let tensors = BlobTensors {
         norm: vec![
-            FeatureNorm { mean_q15: 9830, gain: 27_306, shift: 16 },
-            FeatureNorm { mean_q15: 0, gain: 20_480, shift: 12 },
+            FeatureNorm {
+                mean_q15: 9830,
+                gain: 27_306,
+                shift: 16,
+            },
+            FeatureNorm {
+                mean_q15: 0,
+                gain: 20_480,
+                shift: 12,
+            },
         ],
         lstm: vec![(w, rows)],
         dense: (
             vec![10, -20, 30, 0, -40, 50, -60, 0],
-            vec![DenseRowParams { m: 123_456, bias_q12: 0, shift: 24 }, DenseRowParams { m: 654_321, bias_q12: -409, shift: 24 }],
+            vec![
+                DenseRowParams {
+                    m: 123_456,
+                    bias_q12: 0,
+                    shift: 24,
+                },
+                DenseRowParams {
+                    m: 654_321,
+                    bias_q12: -409,
+                    shift: 24,
+                },
+            ],
         ),
     };
     (config, tensors)
 }
 
 fn hex(bytes: &[u8]) -> String {
-    bytes.chunks(32).map(|c| c.iter().map(|b| format!("{b:02x}")).collect::<String>() + "\n").collect()
+    bytes
+        .chunks(32)
+        .map(|c| c.iter().map(|b| format!("{b:02x}")).collect::<String>() + "\n")
+        .collect()
 }
 
 #[test]
@@ -52,20 +82,33 @@ fn golden_bytes_of_a_small_blob() {
         std::fs::write(GOLDEN, hex(&bytes)).unwrap();
     }
     let want = std::fs::read_to_string(GOLDEN).expect("golden file (SLIPGUARD_BLESS=1 writes it)");
-    assert_eq!(hex(&bytes), want, "blob bytes changed: a format change needs a new version");
+    assert_eq!(
+        hex(&bytes),
+        want,
+        "blob bytes changed: a format change needs a new version"
+    );
     // Independent spot checks of the documented layout (docs/model-format.md).
     assert_eq!(&bytes[0..4], b"SGMB");
     assert_eq!(u16::from_le_bytes([bytes[4], bytes[5]]), 1);
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize, bytes.len());
+    assert_eq!(
+        u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize,
+        bytes.len()
+    );
     assert_eq!(bytes[16], 0); // variant (a)
     assert_eq!(bytes[17], 1); // d(t) flag
-    assert_eq!(u32::from_le_bytes(bytes[20..24].try_into().unwrap()), 16_700);
+    assert_eq!(
+        u32::from_le_bytes(bytes[20..24].try_into().unwrap()),
+        16_700
+    );
     assert_eq!(u16::from_le_bytes([bytes[36], bytes[37]]), 19_661);
     assert_eq!(&bytes[52..61], b"golden-v1");
     // CRC-32/ISO-HDLC is zlib's crc32: check value of "123456789" is 0xCBF43926.
     assert_eq!(CRC32.checksum(b"123456789"), 0xCBF4_3926);
     let n = bytes.len();
-    assert_eq!(u32::from_le_bytes(bytes[n - 4..].try_into().unwrap()), CRC32.checksum(&bytes[..n - 4]));
+    assert_eq!(
+        u32::from_le_bytes(bytes[n - 4..].try_into().unwrap()),
+        CRC32.checksum(&bytes[..n - 4])
+    );
 
     let blob = AlignedBlob::new(&bytes);
     let parsed = blob.parse().expect("golden blob parses");
@@ -102,8 +145,20 @@ fn each_kind_of_damage_has_its_own_error() {
     let good = write_blob(&config, &tensors);
     let n = good.len();
 
-    assert!(matches!(parse(&good[..10]), Err(BlobError::Truncated { needed: 64, present: 10 })));
-    assert_eq!(parse(&good[..n - 1]), Err(BlobError::Truncated { needed: n as u32, present: n as u32 - 1 }));
+    assert!(matches!(
+        parse(&good[..10]),
+        Err(BlobError::Truncated {
+            needed: 64,
+            present: 10
+        })
+    ));
+    assert_eq!(
+        parse(&good[..n - 1]),
+        Err(BlobError::Truncated {
+            needed: n as u32,
+            present: n as u32 - 1
+        })
+    );
     let mut bad = good.clone();
     bad[0] = b'X';
     assert_eq!(parse(&bad), Err(BlobError::BadMagic));
@@ -116,7 +171,10 @@ fn each_kind_of_damage_has_its_own_error() {
 
     // Misaligned: the same bytes one byte into an aligned buffer.
     let aligned = AlignedBlob::new(&[&[0u8][..], &good].concat());
-    assert_eq!(ModelBlob::parse(&aligned.as_bytes()[1..]).err(), Some(BlobError::Misaligned));
+    assert_eq!(
+        ModelBlob::parse(&aligned.as_bytes()[1..]).err(),
+        Some(BlobError::Misaligned)
+    );
     // A tensor offset that is not 4-aligned (first directory entry's offset + 2).
     assert_eq!(
         patched(|b| {
@@ -129,22 +187,49 @@ fn each_kind_of_damage_has_its_own_error() {
     assert_eq!(patched(|b| b[16] = 9), Err(BlobError::UnknownVariant(9)));
     assert_eq!(patched(|b| b[17] = 0x80), Err(BlobError::UnknownField));
     assert_eq!(patched(|b| b[19] = 7), Err(BlobError::UnknownField));
-    assert_eq!(patched(|b| b[40..42].copy_from_slice(&129u16.to_le_bytes())), Err(BlobError::OverBounds));
+    assert_eq!(
+        patched(|b| b[40..42].copy_from_slice(&129u16.to_le_bytes())),
+        Err(BlobError::OverBounds)
+    );
     assert_eq!(patched(|b| b[44] = 40), Err(BlobError::OverBounds));
-    assert_eq!(patched(|b| b[40..42].copy_from_slice(&4u16.to_le_bytes())), Err(BlobError::TensorShape(TensorKind::LstmWeights)));
-    assert_eq!(patched(|b| b[42..44].copy_from_slice(&4u16.to_le_bytes())), Err(BlobError::InconsistentSizes));
+    assert_eq!(
+        patched(|b| b[40..42].copy_from_slice(&4u16.to_le_bytes())),
+        Err(BlobError::TensorShape(TensorKind::LstmWeights))
+    );
+    assert_eq!(
+        patched(|b| b[42..44].copy_from_slice(&4u16.to_le_bytes())),
+        Err(BlobError::InconsistentSizes)
+    );
     assert_eq!(patched(|b| b[18] = 2), Err(BlobError::InconsistentSizes));
-    assert_eq!(patched(|b| b[46] = 0), Err(BlobError::QuantParam(TensorKind::LstmRowParams)));
-    assert_eq!(patched(|b| b[36..38].copy_from_slice(&0u16.to_le_bytes())), Err(BlobError::BadSetting));
-    assert_eq!(patched(|b| b[28..32].copy_from_slice(&0i32.to_le_bytes())), Err(BlobError::BadSetting));
+    assert_eq!(
+        patched(|b| b[46] = 0),
+        Err(BlobError::QuantParam(TensorKind::LstmRowParams))
+    );
+    assert_eq!(
+        patched(|b| b[36..38].copy_from_slice(&0u16.to_le_bytes())),
+        Err(BlobError::BadSetting)
+    );
+    assert_eq!(
+        patched(|b| b[28..32].copy_from_slice(&0i32.to_le_bytes())),
+        Err(BlobError::BadSetting)
+    );
     assert_eq!(patched(|b| b[32] = 20), Err(BlobError::InconsistentSizes)); // STFT settings in a force-only model
 
     // Directory damage: entry 1 is the LSTM weights, entry 2 its row parameters.
     let e = |i: usize| HEADER_LEN + 16 * i;
     assert_eq!(patched(|b| b[e(1)] = 9), Err(BlobError::UnknownTensor));
-    assert_eq!(patched(|b| b[e(2)] = 2), Err(BlobError::DuplicateTensor(TensorKind::LstmWeights)));
-    assert_eq!(patched(|b| b[e(1) + 4] = 11), Err(BlobError::TensorShape(TensorKind::LstmWeights)));
-    assert_eq!(patched(|b| b[e(1) + 15] = 0xff), Err(BlobError::TensorOutOfBounds(TensorKind::LstmWeights)));
+    assert_eq!(
+        patched(|b| b[e(2)] = 2),
+        Err(BlobError::DuplicateTensor(TensorKind::LstmWeights))
+    );
+    assert_eq!(
+        patched(|b| b[e(1) + 4] = 11),
+        Err(BlobError::TensorShape(TensorKind::LstmWeights))
+    );
+    assert_eq!(
+        patched(|b| b[e(1) + 15] = 0xff),
+        Err(BlobError::TensorOutOfBounds(TensorKind::LstmWeights))
+    );
     assert_eq!(
         patched(|b| b[48..50].copy_from_slice(&4u16.to_le_bytes())),
         Err(BlobError::MissingTensor(TensorKind::DenseRowParams))
@@ -164,7 +249,10 @@ fn no_truncation_or_mutation_panics() {
     let float = common::random_model(Variant::DualLstm, 8, true, 3);
     let (good, _) = slipguard_core::quantize::quantize(&float, &[], None).unwrap();
     for len in 0..good.len() {
-        assert!(parse(&good[..len]).is_err(), "prefix of {len} bytes accepted");
+        assert!(
+            parse(&good[..len]).is_err(),
+            "prefix of {len} bytes accepted"
+        );
     }
     // Every single-byte change in the header and directory, with the CRC made valid again:
     // the parser either refuses it or gives a model that runs without panicking.
@@ -187,5 +275,7 @@ fn no_truncation_or_mutation_panics() {
             }
         }
     }
-    println!("{accepted} harmless single-byte header changes accepted (ids, names, thresholds, offsets)");
+    println!(
+        "{accepted} harmless single-byte header changes accepted (ids, names, thresholds, offsets)"
+    );
 }

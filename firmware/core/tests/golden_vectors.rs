@@ -6,7 +6,7 @@
 //! (only when the format or arithmetic changes on purpose).
 mod common;
 
-use slipguard_core::blob::{AlignedBlob, Variant, CRC32};
+use slipguard_core::blob::{AlignedBlob, CRC32, Variant};
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::quantize::quantize;
 
@@ -43,16 +43,26 @@ fn host_core_reproduces_the_golden_vectors() {
         let calib: Vec<Vec<f32>> = (0..3).map(|i| common::smooth_force(77 + i, 400)).collect();
         let refs: Vec<&[f32]> = calib.iter().map(|c| c.as_slice()).collect();
         let (blob, _) = quantize(&float, &refs, None).unwrap();
-        let input: Vec<i32> = common::smooth_force(4242, STEPS).iter().map(|v| v.round() as i32).collect();
+        let input: Vec<i32> = common::smooth_force(4242, STEPS)
+            .iter()
+            .map(|v| v.round() as i32)
+            .collect();
         let bytes: Vec<u8> = input.iter().flat_map(|v| v.to_le_bytes()).collect();
         std::fs::write(dir.join("model.bin"), &blob).unwrap();
         std::fs::write(dir.join("input.bin"), bytes).unwrap();
         let a = AlignedBlob::new(&blob);
-        std::fs::write(dir.join("expected.bin"), expected(&Model::from_bytes(a.as_bytes()).unwrap(), &input)).unwrap();
+        std::fs::write(
+            dir.join("expected.bin"),
+            expected(&Model::from_bytes(a.as_bytes()).unwrap(), &input),
+        )
+        .unwrap();
     }
     let blob = AlignedBlob::new(&std::fs::read(dir.join("model.bin")).expect("model.bin"));
     let model = Model::from_bytes(blob.as_bytes()).expect("golden model parses");
-    assert_eq!(model.config().macs_per_step(), 4 * 128 * (11 + 128) + 2 * 128);
+    assert_eq!(
+        model.config().macs_per_step(),
+        4 * 128 * (11 + 128) + 2 * 128
+    );
     let input: Vec<i32> = std::fs::read(dir.join("input.bin"))
         .unwrap()
         .chunks_exact(4)
@@ -62,9 +72,15 @@ fn host_core_reproduces_the_golden_vectors() {
     let want = std::fs::read(dir.join("expected.bin")).unwrap();
     let got = expected(&model, &input);
     let first_diff = got.chunks(8).zip(want.chunks(8)).position(|(a, b)| a != b);
-    assert_eq!(first_diff, None, "host output differs from the golden vectors at step {first_diff:?}");
+    assert_eq!(
+        first_diff, None,
+        "host output differs from the golden vectors at step {first_diff:?}"
+    );
     assert_eq!(got.len(), want.len());
     // The trace must exercise both flag states, or the check proves little.
     let flags: Vec<u8> = got.chunks(8).map(|c| c[2]).collect();
-    assert!(flags.contains(&0) && flags.contains(&1), "golden trace never changes the flag");
+    assert!(
+        flags.contains(&0) && flags.contains(&1),
+        "golden trace never changes the flag"
+    );
 }

@@ -28,7 +28,8 @@ use slipguard_core::model::{ChannelState, Model};
 #[repr(C, align(4))]
 struct Aligned<T: ?Sized>(T);
 
-static BLOB: &Aligned<[u8]> = &Aligned(*include_bytes!("../../core/tests/fixtures/bench/model.bin"));
+static BLOB: &Aligned<[u8]> =
+    &Aligned(*include_bytes!("../../core/tests/fixtures/bench/model.bin"));
 static INPUT: &[u8] = include_bytes!("../../core/tests/fixtures/bench/input.bin");
 static EXPECTED: &[u8] = include_bytes!("../../core/tests/fixtures/bench/expected.bin");
 
@@ -98,7 +99,11 @@ fn main() -> ! {
             first_bad = Some(i);
         }
     }
-    harness::check_equal("all steps equal the host (first differing step)", &first_bad, &None);
+    harness::check_equal(
+        "all steps equal the host (first differing step)",
+        &first_bad,
+        &None,
+    );
 
     // 2. Whole channel step: sample → STFT → normalise → LSTM → dense → decision.
     let mut st = ChannelState::new();
@@ -112,7 +117,9 @@ fn main() -> ! {
     let blob = model.blob();
     let lstm_t = blob.lstm[0];
     let mut ls = LstmState::new();
-    let x = [1234i16, -2345, 345, 456, -567, 678, 789, -890, 901, 120, -230];
+    let x = [
+        1234i16, -2345, 345, 456, -567, 678, 789, -890, 901, 120, -230,
+    ];
     let lstm_insns = harness::bench("LSTM cell step (11 -> 128)", 50, || {
         lstm::step(black_box(&lstm_t), &mut ls, black_box(&x));
     });
@@ -129,7 +136,11 @@ fn main() -> ! {
     let mut j = 0u32;
     harness::bench("STFT step (N=20, 10 bands)", 200, || {
         j += 1;
-        plan.step(&mut ss, black_box((j.wrapping_mul(2_654_435_761) >> 17) as i16), &mut out);
+        plan.step(
+            &mut ss,
+            black_box((j.wrapping_mul(2_654_435_761) >> 17) as i16),
+            &mut out,
+        );
         black_box(&out);
     });
 

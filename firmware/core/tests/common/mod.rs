@@ -21,7 +21,12 @@ pub fn config(variant: Variant, hidden: u16, force_diff: bool) -> ModelConfig {
         stft: if variant.uses_bands() {
             StftConfig::PAPER
         } else {
-            StftConfig { window_len: 0, first_bin: 0, n_bins: 0, shape: WindowShape::Rectangular }
+            StftConfig {
+                window_len: 0,
+                first_bin: 0,
+                n_bins: 0,
+                shape: WindowShape::Rectangular,
+            }
         },
         hidden: [hidden, if dual { hidden } else { 0 }],
         cell_frac_bits: [0, 0],
