@@ -108,10 +108,13 @@ fn main() -> ! {
     // 2. Whole channel step: sample → STFT → normalise → LSTM → dense → decision.
     let mut st = ChannelState::new();
     let mut i = 0;
+    // Markers #1/#2 bracket this span for the exact insncount plugin (../shared/tools/qemu-plugins).
+    insns::marker(1);
     let step = harness::bench("channel step (variant c, H=128)", steps as u32, || {
         black_box(model.step(&mut st, black_box(input(i % steps))));
         i += 1;
     });
+    insns::marker(2);
 
     // 3. Parts, on the same model and inputs.
     let blob = model.blob();
