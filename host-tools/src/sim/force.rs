@@ -31,10 +31,14 @@ use crate::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
 const G: f64 = 9.81;
 /// Onset of stick-slip as a fraction of the friction capacity.
 pub const RHO_STICK_SLIP: f64 = 0.85;
+/// Load ratio above which the stuck zone erodes (viscoelastic creep of the pad).
+pub const EROSION_ONSET: f64 = 0.5;
 /// Kinetic / static friction ratio.
 pub const KINETIC_RATIO: f64 = 0.75;
 /// Loss of friction capacity at full slide-out (`λ`).
 pub const AREA_LOSS: f64 = 0.6;
+/// Time constant of the force decay once the object has left the fingers (s).
+pub const LOSS_TAU_S: f64 = 0.06;
 /// Internal integration rate.
 pub const INTERNAL_HZ: f64 = 1000.0;
 
@@ -83,7 +87,7 @@ impl Default for ForceSimConfig {
             noise_rel: 0.01,
             idle_spike_prob: 0.06,
             idle_spike_mn: 120.0,
-            repeat_prob: 0.04,
+            repeat_prob: 0.07,
             redistribution_prob: 0.35,
             squeeze_prob: 0.5,
             sensor_tau_s: 0.02,
@@ -133,6 +137,8 @@ pub struct ForceParams {
     pub stick_slip_hz: f64,
     pub vib_amp: f64,
     pub creep_mm_s: f64,
+    /// Erosion rate of the stuck zone (1/s per unit of load ratio above 0.5).
+    pub erosion_rate: f64,
     pub contact_len_mm: f64,
     pub wedge: f64,
     /// (channel, start time, factor) of a contact redistribution.
@@ -174,11 +180,17 @@ impl ForceParams {
         let sum: f64 = raw.iter().sum();
         let shares = raw.iter().map(|w| w / sum).collect();
         let gains = (0..nch).map(|_| uniform(rng, 0.8, 1.2)).collect();
-        let mass_kg = uniform(rng, 0.1, 1.0);
+        let mass_kg = uniform(rng, 0.05, 0.5);
         let mu_s = uniform(rng, 0.4, 1.0);
+        let lift_accel = uniform(rng, 1.5, 4.0);
+        // Drop: the lift pulse brings the load ratio to 0.80-0.97 (stick-slip
+        // zone, not yet gross slip); erosion of the stuck zone does the rest.
         let (rho_hold, squeeze_gain) = match intent {
-            Intent::Hold => (uniform(rng, 0.25, 0.6), uniform(rng, 0.0, 0.6)),
-            Intent::Drop => (uniform(rng, 0.86, 0.97), uniform(rng, 0.0, 0.08)),
+            Intent::Hold => (uniform(rng, 0.25, 0.5), uniform(rng, 0.0, 0.6)),
+            Intent::Drop => (
+                uniform(rng, 0.81, 0.87) / (1.0 + lift_accel / G),
+                uniform(rng, 0.0, 0.1),
+            ),
         };
         let grip_n = mass_kg * G / (mu_s * rho_hold);
         let t_grasp = uniform(rng, 1.1, 4.2);
@@ -225,13 +237,14 @@ impl ForceParams {
             t_lift,
             t_open_mark,
             t_release,
-            lift_accel: uniform(rng, 1.5, 4.0),
+            lift_accel,
             accel_dur: uniform(rng, 0.5, 1.0),
             cruise_dur: uniform(rng, 1.0, 2.0),
             squeeze_gain,
             stick_slip_hz: uniform(rng, 3.0, 5.0),
             vib_amp: uniform(rng, 0.15, 0.35),
             creep_mm_s: uniform(rng, 6.0, 14.0),
+            erosion_rate: uniform(rng, 0.55, 0.8),
             contact_len_mm: uniform(rng, 10.0, 25.0),
             wedge: uniform(rng, 0.0, 0.5),
             redistribution,
@@ -263,7 +276,7 @@ impl ForceParams {
             n *= 1.0 + self.squeeze_gain * (1.0 - (-(t - self.t_lift) / 1.0).exp());
         }
         if t > self.t_release {
-            n *= (-(t - self.t_release) / 0.25).exp();
+            n *= (-(t - self.t_release) / 0.08).exp();
         }
         n
     }
@@ -303,6 +316,7 @@ pub fn integrate(p: &ForceParams, cfg: &ForceSimConfig) -> ForceTruth {
     let mut slip_v = vec![0.0; n];
     let (mut s_mm, mut v_mm_s, mut phase) = (0.0f64, 0.0f64, 0.0f64);
     let mut gross = false;
+    let mut erosion = 0.0f64;
     let (mut t_onset, mut t_gross, mut t_loss) = (None, None, None);
     let mut n_at_loss = 0.0;
     let mut shares = p.shares.clone();
@@ -318,10 +332,13 @@ pub fn integrate(p: &ForceParams, cfg: &ForceSimConfig) -> ForceTruth {
         let mut n_obj = grip;
         if !lost {
             let frac = (s_mm / p.contact_len_mm).min(1.0);
-            let mu_eff = p.mu_s * (1.0 - AREA_LOSS * frac);
+            let mu_eff = p.mu_s * (1.0 - AREA_LOSS * frac) * (1.0 - erosion);
             let cap = mu_eff * grip;
             let rho = if cap > 0.0 { load / cap } else { 0.0 };
             *rho_out = rho;
+            if load > 0.0 {
+                erosion = (erosion + p.erosion_rate * (rho - EROSION_ONSET).max(0.0) * dt).min(0.5);
+            }
             if !gross && load > 0.0 && rho >= 1.0 {
                 gross = true;
                 t_gross = Some(t);
@@ -336,7 +353,7 @@ pub fn integrate(p: &ForceParams, cfg: &ForceSimConfig) -> ForceTruth {
                 }
                 s_mm += v_mm_s * dt;
                 let w = 1.0 + p.wedge * (std::f64::consts::PI * frac).sin();
-                factor = (1.0 - frac).max(0.0).sqrt() * w;
+                factor = (1.0 - 0.5 * frac) * w;
             } else if load > 0.0 && rho >= RHO_STICK_SLIP {
                 t_onset.get_or_insert(t);
                 let x = ((rho - RHO_STICK_SLIP) / (1.0 - RHO_STICK_SLIP)).clamp(0.0, 1.0);
@@ -351,7 +368,7 @@ pub fn integrate(p: &ForceParams, cfg: &ForceSimConfig) -> ForceTruth {
             }
         } else {
             let tl = t_loss.expect("lost");
-            n_obj = n_at_loss * (-(t - tl) / 0.05).exp();
+            n_obj = n_at_loss * (-(t - tl) / LOSS_TAU_S).exp();
         }
         *slip_out = s_mm;
         // Contact redistribution (no slip): one pad unloads over 0.3 s, the others take it.
@@ -415,6 +432,24 @@ pub fn simulate_trial(
     let p = ForceParams::draw(&mut rng, intent, cfg);
     let truth = integrate(&p, cfg);
     sample(&p, &truth, cfg, &mut rng, seed, index)
+}
+
+/// Drop step as the labeller defines it, on the noise-free contact sum: the
+/// first step after the loss at which it is below 5 % of its peak since lift start.
+fn drop_step(p: &ForceParams, truth: &ForceTruth, t_loss: f64, rate: f64) -> usize {
+    let sum = |i: usize| p.contacts.iter().map(|&c| truth.pads[c][i]).sum::<f64>();
+    let i_lift = (p.t_lift * INTERNAL_HZ) as usize;
+    let i_loss = (t_loss * INTERNAL_HZ) as usize;
+    let peak = (i_lift..=i_loss).map(sum).fold(0.0, f64::max);
+    let last = truth.pads[0].len() - 1;
+    let mut k = step_of(t_loss, rate);
+    loop {
+        let i = (((k as f64) / rate) * INTERNAL_HZ).round() as usize;
+        if i >= last || sum(i) < 0.05 * peak {
+            return k;
+        }
+        k += 1;
+    }
 }
 
 fn step_of(t: f64, rate: f64) -> usize {
@@ -485,7 +520,7 @@ fn sample(
         open_start: Some(clamp(step_of(p.t_open_mark, rate))),
     };
     trial.outcome = outcome;
-    trial.drop_step = truth.t_loss.map(|t| clamp(step_of(t, rate)));
+    trial.drop_step = truth.t_loss.map(|t| clamp(drop_step(p, truth, t, rate)));
     trial.slip_onset_step = match outcome {
         Outcome::Failure => truth.t_slip_onset.map(|t| clamp(step_of(t, rate))),
         _ => None,

@@ -318,13 +318,20 @@ pub fn simulate_trial(
         e.insert("sim_intent".into(), if p.drop_intent { "drop" } else { "hold" }.into());
         e.insert("sim_mass_kg".into(), format!("{:.4}", p.mass_kg));
         e.insert("sim_supply_kpa".into(), format!("{:.2}", p.supply_kpa));
+        let cups = |m: [bool; 4]| {
+            (0..4)
+                .filter(|&c| m[c])
+                .map(|c| format!("c{c}"))
+                .collect::<Vec<_>>()
+                .join("+")
+        };
         if let Some((m, t0, ..)) = p.leak {
-            e.insert("sim_leak".into(), format!("cups {m:?} from step {}", st(t0)).replace(' ', ""));
+            e.insert("sim_leak".into(), format!("leak on {} from step {}", cups(m), st(t0)));
         }
         if let Some((m, t0, ..)) = p.deformation {
             e.insert(
                 "sim_deformation".into(),
-                format!("cups {m:?} at step {}", st(t0)).replace(' ', ""),
+                format!("deformation on {} at step {}", cups(m), st(t0)),
             );
         }
         tr
