@@ -66,7 +66,13 @@ pub(crate) fn parse_number(
 ) -> Result<f32, DataError> {
     let f = field.trim();
     if f.is_empty() {
-        return Err(parse_error(path, line, Some(col), Some(name), "empty value"));
+        return Err(parse_error(
+            path,
+            line,
+            Some(col),
+            Some(name),
+            "empty value",
+        ));
     }
     match f.parse::<f32>() {
         Ok(v) if v.is_finite() => Ok(v),
@@ -92,7 +98,10 @@ pub(crate) fn check_width(
         let msg = if fields.len() < expected {
             format!("row has {} fields, header has {expected}", fields.len())
         } else {
-            format!("row has {} fields, header has only {expected}", fields.len())
+            format!(
+                "row has {} fields, header has only {expected}",
+                fields.len()
+            )
         };
         return Err(parse_error(path, line, Some(col), None, msg));
     }

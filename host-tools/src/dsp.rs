@@ -30,7 +30,9 @@ pub fn stft(x: &[f32], win: usize) -> Vec<Vec<f64>> {
     if x.len() < win || win == 0 {
         return Vec::new();
     }
-    (win..=x.len()).map(|end| dft_magnitudes(&x[end - win..end])).collect()
+    (win..=x.len())
+        .map(|end| dft_magnitudes(&x[end - win..end]))
+        .collect()
 }
 
 /// Mean power spectrum (|X|², bins `0..=win/2`) of the *first difference*

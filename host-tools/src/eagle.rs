@@ -46,10 +46,20 @@ pub fn read_tactile_csv(path: &Path) -> Result<(Vec<String>, Vec<Vec<f32>>)> {
     let header = it
         .next()
         .ok_or_else(|| parse_error(path, 1, None, None, "empty file: no header"))?;
-    let names: Vec<String> = header.text.split(',').map(|s| s.trim().to_string()).collect();
+    let names: Vec<String> = header
+        .text
+        .split(',')
+        .map(|s| s.trim().to_string())
+        .collect();
     for (i, n) in names.iter().enumerate() {
         if n.is_empty() {
-            return Err(parse_error(path, header.number, Some(i + 1), None, "empty column name"));
+            return Err(parse_error(
+                path,
+                header.number,
+                Some(i + 1),
+                None,
+                "empty column name",
+            ));
         }
         if n.parse::<f64>().is_ok() {
             return Err(parse_error(
@@ -70,7 +80,13 @@ pub fn read_tactile_csv(path: &Path) -> Result<(Vec<String>, Vec<Vec<f32>>)> {
         }
     }
     if samples[0].is_empty() {
-        return Err(parse_error(path, header.number + 1, None, None, "no data rows"));
+        return Err(parse_error(
+            path,
+            header.number + 1,
+            None,
+            None,
+            "no data rows",
+        ));
     }
     Ok((names, samples))
 }

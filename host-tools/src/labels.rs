@@ -89,7 +89,10 @@ impl LabelConfig {
 
     pub fn check(&self) -> Result<(), String> {
         if !(0.0..1.0).contains(&self.drop_fraction) {
-            return Err(format!("drop_fraction {} not in [0, 1)", self.drop_fraction));
+            return Err(format!(
+                "drop_fraction {} not in [0, 1)",
+                self.drop_fraction
+            ));
         }
         if self.sequence_len == 0 || self.contact_min_run == 0 || self.drop_hold_steps == 0 {
             return Err("sequence_len, contact_min_run and drop_hold_steps must be > 0".into());
@@ -136,7 +139,13 @@ pub fn deviations(trial: &Trial) -> Vec<Vec<f32>> {
 /// consecutive steps.
 pub fn detect_contact(trial: &Trial, start: usize, end: usize, cfg: &LabelConfig) -> Vec<bool> {
     let dev = deviations(trial);
-    contact_from_dev(&dev, start, end, cfg.contact_threshold(&trial.unit), cfg.contact_min_run)
+    contact_from_dev(
+        &dev,
+        start,
+        end,
+        cfg.contact_threshold(&trial.unit),
+        cfg.contact_min_run,
+    )
 }
 
 fn contact_from_dev(dev: &[Vec<f32>], start: usize, end: usize, thr: f32, run: usize) -> Vec<bool> {

@@ -207,7 +207,9 @@ pub fn evaluate(seqs: &[EvalSequence], ev: EventConfig) -> Metrics {
                 (Some(Stability::Stable), false) => c.tn += 1,
             }
         }
-        let drop = s.drop_index.filter(|&d| s.failure && d < s.predictions.len());
+        let drop = s
+            .drop_index
+            .filter(|&d| s.failure && d < s.predictions.len());
         if let Some(d) = drop {
             fail_n += 1;
             if let Some(a) = s.first_alarm()
@@ -228,9 +230,8 @@ pub fn evaluate(seqs: &[EvalSequence], ev: EventConfig) -> Metrics {
             drops += 1;
         }
         for a in s.alarms() {
-            let in_window = drop.is_some_and(|d| {
-                a + ev.max_lead_steps >= d && a <= d + ev.max_lag_steps
-            });
+            let in_window =
+                drop.is_some_and(|d| a + ev.max_lead_steps >= d && a <= d + ev.max_lag_steps);
             if in_window {
                 if !hit {
                     hit = true;
@@ -296,7 +297,15 @@ impl std::fmt::Display for Metrics {
         )?;
         let c = self.confusion;
         writeln!(f, "confusion            label\\pred  stable  unstable")?;
-        writeln!(f, "                     stable     {:>6}  {:>8}", c.tn, c.fp)?;
-        write!(f, "                     unstable   {:>6}  {:>8}", c.fn_, c.tp)
+        writeln!(
+            f,
+            "                     stable     {:>6}  {:>8}",
+            c.tn, c.fp
+        )?;
+        write!(
+            f,
+            "                     unstable   {:>6}  {:>8}",
+            c.fn_, c.tp
+        )
     }
 }

@@ -207,7 +207,8 @@ pub fn plot_spectra(
 
 /// All channels of trials stacked vertically (for suction: 71 Hz over 17.75 Hz).
 pub fn plot_stack(trials: &[&Trial], path: &Path) -> Result<()> {
-    let root = BitMapBackend::new(path, (1100, 330 * trials.len().max(1) as u32)).into_drawing_area();
+    let root =
+        BitMapBackend::new(path, (1100, 330 * trials.len().max(1) as u32)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(path, e))?;
     let cells = root.split_evenly((trials.len().max(1), 1));
     for (t, area) in trials.iter().zip(&cells) {

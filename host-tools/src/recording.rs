@@ -254,9 +254,9 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
     };
 
     // Header.
-    let header = it.next().ok_or_else(|| {
-        parse_error(path, meta.len() + 2, None, None, "missing header line")
-    })?;
+    let header = it
+        .next()
+        .ok_or_else(|| parse_error(path, meta.len() + 2, None, None, "missing header line"))?;
     let cols: Vec<&str> = header.text.split(',').map(str::trim).collect();
     if cols[0] != "time_s" {
         return Err(DataError::MissingColumn {
@@ -273,7 +273,9 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
         match c {
             "phase" => {
                 if phase_col.is_some() || label_col.is_some() {
-                    return Err(err("`phase` must come once, after the channels and before `label`".into()));
+                    return Err(err(
+                        "`phase` must come once, after the channels and before `label`".into(),
+                    ));
                 }
                 phase_col = Some(i);
             }
@@ -287,7 +289,9 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
             "time_s" => return Err(err("`time_s` must be the first column only".into())),
             _ => {
                 if phase_col.is_some() || label_col.is_some() {
-                    return Err(err("channel columns must come before `phase` and `label`".into()));
+                    return Err(err(
+                        "channel columns must come before `phase` and `label`".into()
+                    ));
                 }
                 if channel_names.iter().any(|n| n == c) {
                     return Err(err(format!("channel `{c}` given twice")));
@@ -340,12 +344,18 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
         }
         times.push((t, l.number));
         for (c, samples_c) in samples.iter_mut().enumerate() {
-            samples_c.push(parse_number(path, l.number, c + 2, &channel_names[c], f[c + 1])?);
+            samples_c.push(parse_number(
+                path,
+                l.number,
+                c + 2,
+                &channel_names[c],
+                f[c + 1],
+            )?);
         }
         if let Some(pc) = phase_col {
-            let p: Phase = f[pc].parse().map_err(|m: String| {
-                parse_error(path, l.number, Some(pc + 1), Some("phase"), m)
-            })?;
+            let p: Phase = f[pc]
+                .parse()
+                .map_err(|m: String| parse_error(path, l.number, Some(pc + 1), Some("phase"), m))?;
             if let Some(&prev) = phases.last()
                 && (p as u8) < (prev as u8)
             {
@@ -379,7 +389,13 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
     }
     let n = times.len();
     if n == 0 {
-        return Err(parse_error(path, header.number + 1, None, None, "no data rows"));
+        return Err(parse_error(
+            path,
+            header.number + 1,
+            None,
+            None,
+            "no data rows",
+        ));
     }
     // The stated rate must match the time column (mean step within 5 %).
     if n >= 2 {
@@ -447,7 +463,8 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
     trial.outcome = outcome;
     trial.drop_step = meta_step("drop_step")?;
     trial.slip_onset_step = meta_step("slip_onset_step")?;
-    trial.source = get("source").map_or_else(|| format!("recording {}", path.display()), |m| m.1.clone());
+    trial.source =
+        get("source").map_or_else(|| format!("recording {}", path.display()), |m| m.1.clone());
     if label_col.is_some() {
         trial.step_labels = Some(labels);
     }

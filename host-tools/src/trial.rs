@@ -235,12 +235,7 @@ pub struct Trial {
 
 impl Trial {
     /// A trial with samples and rate; everything else empty/unknown.
-    pub fn new(
-        id: impl Into<String>,
-        unit: Unit,
-        rate_hz: f32,
-        samples: Vec<Vec<f32>>,
-    ) -> Self {
+    pub fn new(id: impl Into<String>, unit: Unit, rate_hz: f32, samples: Vec<Vec<f32>>) -> Self {
         let n = samples.len();
         Trial {
             id: id.into(),
@@ -318,7 +313,10 @@ impl Trial {
             return Err("trial has no channels".into());
         }
         if let Some((i, c)) = self.samples.iter().enumerate().find(|(_, c)| c.len() != n) {
-            return Err(format!("channel {i} has {} steps, channel 0 has {n}", c.len()));
+            return Err(format!(
+                "channel {i} has {} steps, channel 0 has {n}",
+                c.len()
+            ));
         }
         if self.channel_names.len() != self.n_channels() {
             return Err("channel_names and samples differ in length".into());

@@ -90,7 +90,9 @@ pub fn trial_stats(trial: &Trial, cfg: &LabelConfig) -> TrialStats {
     let (mut fall, mut dal) = (None, None);
     if let Some(d) = drop {
         dal = Some(d as f64 - l1 as f64);
-        if let Some(level) = median_of(&s[d.saturating_sub(10).max(l1)..d.saturating_sub(2).max(l1 + 1)]) {
+        if let Some(level) =
+            median_of(&s[d.saturating_sub(10).max(l1)..d.saturating_sub(2).max(l1 + 1)])
+        {
             let last_high = (l1..d).rev().find(|&i| s[i] as f64 >= 0.8 * level);
             fall = last_high.map(|i| (d - i) as f64);
         }
@@ -186,14 +188,26 @@ impl Comparison {
 pub fn compare(real: &[TrialStats], sim: &[TrialStats]) -> Vec<Comparison> {
     type Getter = fn(&TrialStats) -> Option<f64>;
     let items: [(&'static str, &'static str, Getter); 10] = [
-        ("contact channels", "", |s| Some(s.n_contact as f64).filter(|&n| n > 0.0)),
-        ("first contact after grasp start", "steps", |s| s.contact_delay),
+        ("contact channels", "", |s| {
+            Some(s.n_contact as f64).filter(|&n| n > 0.0)
+        }),
+        ("first contact after grasp start", "steps", |s| {
+            s.contact_delay
+        }),
         ("grasp level (5 steps before lift)", "mN", |s| s.grasp_level),
-        ("lift/hold level (lift start to drop or l2)", "mN", |s| s.lift_level),
+        ("lift/hold level (lift start to drop or l2)", "mN", |s| {
+            s.lift_level
+        }),
         ("lift peak / grasp level", "x", |s| s.lift_rise),
-        ("drop after lift start (failures)", "steps", |s| s.drop_after_lift),
-        ("fall time 80 % -> drop (failures)", "steps", |s| s.fall_steps),
-        ("idle samples reading 0", "share", |s| Some(s.idle_zero_share)),
+        ("drop after lift start (failures)", "steps", |s| {
+            s.drop_after_lift
+        }),
+        ("fall time 80 % -> drop (failures)", "steps", |s| {
+            s.fall_steps
+        }),
+        ("idle samples reading 0", "share", |s| {
+            Some(s.idle_zero_share)
+        }),
         ("idle 99th percentile", "mN", |s| Some(s.idle_p99)),
         ("repeated rows", "share", |s| Some(s.repeat_share)),
     ];
@@ -228,7 +242,15 @@ pub fn comparison_table(rows: &[Comparison]) -> String {
             Some(false) => "**no**",
             None => "n/a",
         };
-        let _ = writeln!(s, "| {} | {} | {} | {} | {} |", r.name, r.unit, f(r.real), f(r.sim), verdict);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} |",
+            r.name,
+            r.unit,
+            f(r.real),
+            f(r.sim),
+            verdict
+        );
     }
     s
 }

@@ -59,11 +59,14 @@ fn drop_skips_brief_dip_and_labels_20_before() {
     assert_eq!(l.contact, vec![true, true, false]);
     assert!(l.channel(2).is_none());
     assert_eq!(l.channel(0).unwrap().len(), 160);
-    let seqs = channel_sequences(&{
-        let mut a = t.clone();
-        annotate(&mut a, &cfg);
-        a
-    }, &l);
+    let seqs = channel_sequences(
+        &{
+            let mut a = t.clone();
+            annotate(&mut a, &cfg);
+            a
+        },
+        &l,
+    );
     assert_eq!(seqs.len(), 2);
     assert_eq!(seqs[0].samples[5], 2000.0); // step 10
 }

@@ -108,6 +108,9 @@ fn lead_time_spread() {
     // Sorted 100, 200, 300, 400: median (200+300)/2 = 250; q25 at position 0.75 ->
     // 100 + 0.75*100 = 175; q75 at 2.25 -> 325.
     let s = Spread::of(&[400.0, 100.0, 300.0, 200.0]).unwrap();
-    assert_eq!((s.n, s.median, s.q25, s.q75, s.min, s.max), (4, 250.0, 175.0, 325.0, 100.0, 400.0));
+    assert_eq!(
+        (s.n, s.median, s.q25, s.q75, s.min, s.max),
+        (4, 250.0, 175.0, 325.0, 100.0, 400.0)
+    );
     assert!(Spread::of(&[]).is_none());
 }

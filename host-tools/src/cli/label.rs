@@ -86,7 +86,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     m(t.marks.lift_start),
                     m(t.marks.open_start)
                 ),
-                m(d.first_dip.filter(|_| t.outcome != slipguard_host::Outcome::Success)),
+                m(d.first_dip
+                    .filter(|_| t.outcome != slipguard_host::Outcome::Success)),
                 m(l.drop_step),
                 m(l.unstable_from),
                 l.n_stable(),
@@ -130,7 +131,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     if let Some(dir) = &a.plot {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let pairs: Vec<_> = trials.iter().zip(&labels).filter(|(t, _)| selected(&t.id)).collect();
+        let pairs: Vec<_> = trials
+            .iter()
+            .zip(&labels)
+            .filter(|(t, _)| selected(&t.id))
+            .collect();
         let pb = bar(pairs.len() as u64, "plotting");
         for (t, l) in pairs {
             let p = dir.join(format!("real-{}.png", t.id));

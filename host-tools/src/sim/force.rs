@@ -323,7 +323,12 @@ pub fn integrate(p: &ForceParams, cfg: &ForceSimConfig) -> ForceTruth {
     let base_shares = p.shares.clone();
     let mut lag = vec![0.0; nch];
     let alpha = dt / (cfg.sensor_tau_s + dt);
-    for (i, ((rho_out, slip_out), _)) in rho_v.iter_mut().zip(slip_v.iter_mut()).zip(0..n).enumerate() {
+    for (i, ((rho_out, slip_out), _)) in rho_v
+        .iter_mut()
+        .zip(slip_v.iter_mut())
+        .zip(0..n)
+        .enumerate()
+    {
         let t = i as f64 * dt;
         let grip = p.grip(t);
         let load = p.load(t);
@@ -376,7 +381,12 @@ pub fn integrate(p: &ForceParams, cfg: &ForceSimConfig) -> ForceTruth {
             let k = p.contacts.iter().position(|&c| c == ch).expect("contact");
             let x = ((t - t0) / 0.3).clamp(0.0, 1.0);
             let w = base_shares[k] * (1.0 - (1.0 - f) * x);
-            let rest: f64 = base_shares.iter().enumerate().filter(|&(j, _)| j != k).map(|(_, w)| w).sum();
+            let rest: f64 = base_shares
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != k)
+                .map(|(_, w)| w)
+                .sum();
             for j in 0..shares.len() {
                 shares[j] = if j == k {
                     w
@@ -385,8 +395,16 @@ pub fn integrate(p: &ForceParams, cfg: &ForceSimConfig) -> ForceTruth {
                 };
             }
         }
-        let normal_mn = if lost { n_obj * 1000.0 } else { grip * factor * 1000.0 };
-        let shear_mn = if lost { 0.0 } else { load * 1000.0 * p.shear_coupling };
+        let normal_mn = if lost {
+            n_obj * 1000.0
+        } else {
+            grip * factor * 1000.0
+        };
+        let shear_mn = if lost {
+            0.0
+        } else {
+            load * 1000.0 * p.shear_coupling
+        };
         for (k, &ch) in p.contacts.iter().enumerate() {
             let f = shares[k] * (normal_mn + shear_mn) * p.gains[ch];
             lag[ch] += alpha * (f - lag[ch]);
@@ -466,37 +484,35 @@ fn sample(
 ) -> Trial {
     let n = cfg.n_steps();
     let nch = cfg.n_channels;
-    let mut samples = vec![vec![0.0f32; n]; nch];
     let last = truth.pads[0].len() - 1;
-    let mut prev: Option<Vec<f32>> = None;
+    let mut rows: Vec<Vec<f32>> = Vec::with_capacity(n);
     for k in 0..n {
-        if let Some(pr) = &prev
+        if let Some(pr) = rows.last()
             && rng.random_bool(cfg.repeat_prob)
         {
-            for ch in 0..nch {
-                samples[ch][k] = pr[ch];
-            }
+            rows.push(pr.clone());
             continue;
         }
         let i = ((k as f64 / cfg.rate_hz) * INTERNAL_HZ).round() as usize;
         let i = i.min(last);
-        let mut row = vec![0.0f32; nch];
-        for (ch, r) in row.iter_mut().enumerate() {
-            let f = truth.pads[ch][i];
-            let x = if f > 1.0 {
-                f + normal(rng) * (cfg.noise_floor_mn + cfg.noise_rel * f)
-            } else if rng.random_bool(cfg.idle_spike_prob) {
-                (normal(rng) * cfg.idle_spike_mn).abs()
-            } else {
-                0.0
-            };
-            *r = adc(x, cfg.full_scale_mn, cfg.adc_bits);
-        }
-        for ch in 0..nch {
-            samples[ch][k] = row[ch];
-        }
-        prev = Some(row);
+        let row: Vec<f32> = (0..nch)
+            .map(|ch| {
+                let f = truth.pads[ch][i];
+                let x = if f > 1.0 {
+                    f + normal(rng) * (cfg.noise_floor_mn + cfg.noise_rel * f)
+                } else if rng.random_bool(cfg.idle_spike_prob) {
+                    (normal(rng) * cfg.idle_spike_mn).abs()
+                } else {
+                    0.0
+                };
+                adc(x, cfg.full_scale_mn, cfg.adc_bits)
+            })
+            .collect();
+        rows.push(row);
     }
+    let samples: Vec<Vec<f32>> = (0..nch)
+        .map(|ch| rows.iter().map(|r| r[ch]).collect())
+        .collect();
     let rate = cfg.rate_hz;
     let clamp = |s: usize| s.min(n - 1);
     let outcome = if truth.t_loss.is_some() {
@@ -511,9 +527,7 @@ fn sample(
         samples,
     );
     trial.sensor = SensorKind::Force;
-    trial.source = format!(
-        "slipguard simulate force seed={seed} index={index} rate_hz={rate}"
-    );
+    trial.source = format!("slipguard simulate force seed={seed} index={index} rate_hz={rate}");
     trial.marks = PhaseMarks {
         grasp_start: Some(clamp(step_of(p.t_grasp, rate))),
         lift_start: Some(clamp(step_of(p.t_lift, rate))),
@@ -541,14 +555,20 @@ fn sample(
     }
     let e = &mut trial.extra;
     let f = |x: f64| format!("{x:.4}");
-    e.insert("sim_intent".into(), format!("{:?}", p.intent).to_lowercase());
+    e.insert(
+        "sim_intent".into(),
+        format!("{:?}", p.intent).to_lowercase(),
+    );
     e.insert("sim_mass_kg".into(), f(p.mass_kg));
     e.insert("sim_mu_s".into(), f(p.mu_s));
     e.insert("sim_rho_hold".into(), f(p.rho_hold));
     e.insert("sim_grip_n".into(), f(p.grip_n));
     e.insert("sim_lift_accel".into(), f(p.lift_accel));
     e.insert("sim_stick_slip_hz".into(), f(p.stick_slip_hz));
-    e.insert("sim_contacts".into(), format!("{:?}", p.contacts).replace(' ', ""));
+    e.insert(
+        "sim_contacts".into(),
+        format!("{:?}", p.contacts).replace(' ', ""),
+    );
     e.insert(
         "sim_rho_max".into(),
         f(truth.rho.iter().copied().fold(0.0, f64::max)),
@@ -558,10 +578,16 @@ fn sample(
         f(*truth.slip_mm.last().unwrap_or(&0.0)),
     );
     if let Some((ch, t0, _)) = p.redistribution {
-        e.insert("sim_redistribution".into(), format!("c{ch} at {}", clamp(step_of(t0, rate))));
+        e.insert(
+            "sim_redistribution".into(),
+            format!("c{ch} at {}", clamp(step_of(t0, rate))),
+        );
     }
     if let Some(t) = truth.t_gross_slip {
-        e.insert("sim_gross_slip_step".into(), clamp(step_of(t, rate)).to_string());
+        e.insert(
+            "sim_gross_slip_step".into(),
+            clamp(step_of(t, rate)).to_string(),
+        );
     }
     trial
 }

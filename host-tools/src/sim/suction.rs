@@ -80,9 +80,9 @@ impl SuctionParams {
         let cup_area_m2 = std::f64::consts::PI * uniform(rng, 0.010, 0.016).powi(2);
         let efficiency = uniform(rng, 0.5, 0.7);
         let hold_force = efficiency * 4.0 * supply_kpa * 1000.0 * cup_area_m2;
-        // Safety factor of the static hold: 1.8-4 (hold) or 1.3-1.8 (drop, needs a leak).
+        // Safety factor of the static hold: 1.8-4 (hold) or 1.1-1.4 (drop, needs a leak).
         let sf = if drop_intent {
-            uniform(rng, 1.3, 1.8)
+            uniform(rng, 1.1, 1.4)
         } else {
             uniform(rng, 1.8, 4.0)
         };
@@ -103,12 +103,12 @@ impl SuctionParams {
             m
         };
         let leak = if drop_intent {
-            let k = rng.random_range(1..=2);
+            let k = rng.random_range(2..=3);
             Some((
                 pick(rng, k),
                 t_lift + uniform(rng, 0.2, 3.0),
                 uniform(rng, 0.2, 1.0),
-                uniform(rng, 8.0, 30.0),
+                uniform(rng, 15.0, 40.0),
                 uniform(rng, 3.0, 5.0),
             ))
         } else if rng.random_bool(0.25) {
@@ -194,7 +194,9 @@ pub fn integrate(p: &SuctionParams, cfg: &SuctionSimConfig) -> (Vec<[f64; 4]>, O
                 let x = ((t - t0) / ramp).min(1.0) * (kmax / 30.0).min(1.0);
                 for c in 0..4 {
                     if mask[c] {
-                        read[c] -= 0.15 * vac[c] * x
+                        read[c] -= 0.15
+                            * vac[c]
+                            * x
                             * (0.5 - 0.5 * (2.0 * std::f64::consts::PI * f * (t - t0)).cos());
                     }
                 }
@@ -315,7 +317,10 @@ pub fn simulate_trial(
             tr.step_labels = Some(v);
         }
         let e = &mut tr.extra;
-        e.insert("sim_intent".into(), if p.drop_intent { "drop" } else { "hold" }.into());
+        e.insert(
+            "sim_intent".into(),
+            if p.drop_intent { "drop" } else { "hold" }.into(),
+        );
         e.insert("sim_mass_kg".into(), format!("{:.4}", p.mass_kg));
         e.insert("sim_supply_kpa".into(), format!("{:.2}", p.supply_kpa));
         let cups = |m: [bool; 4]| {
@@ -326,7 +331,10 @@ pub fn simulate_trial(
                 .join("+")
         };
         if let Some((m, t0, ..)) = p.leak {
-            e.insert("sim_leak".into(), format!("leak on {} from step {}", cups(m), st(t0)));
+            e.insert(
+                "sim_leak".into(),
+                format!("leak on {} from step {}", cups(m), st(t0)),
+            );
         }
         if let Some((m, t0, ..)) = p.deformation {
             e.insert(
