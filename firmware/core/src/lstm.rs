@@ -15,11 +15,11 @@
 //! requantisation ([`LstmRowParams`]). All rounding is to nearest, so the host and the
 //! Cortex-M4 compute the same bits.
 
-use crate::MAX_HIDDEN;
 use crate::activation::{sigmoid, tanh};
 use crate::blob::{LstmRowParams, LstmTensors};
-use crate::dsp::dot_i8_i16;
+use crate::dsp::{dot_rows_i8_q15, permute_q15};
 use crate::fixed::{round_shift_i32, round_shift_i64, sat_i16, sat_i16_wide};
+use crate::{MAX_HIDDEN, MAX_INPUT};
 
 /// One LSTM's recurrent state for one channel.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -78,24 +78,49 @@ fn cell_to_q12(c: i16, cell_frac_bits: u32) -> i16 {
 pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     let hn = t.hidden.min(MAX_HIDDEN);
     let x = &x[..t.inputs.min(x.len())];
+    // x and h in the dot kernel's lane order, zero-padded to whole groups of 4 (the weights'
+    // padding meets zeros, so the sums equal the plain dot products over I and H terms).
+    let mut xp = [0u32; MAX_INPUT.div_ceil(4) * 2];
+    let xw = permute_q15(x, &mut xp);
+    let mut hp = [0u32; MAX_HIDDEN / 2];
+    let hw = permute_q15(&state.h[..hn], &mut hp);
+    let stride = t.row_len.max(1);
+    let rows = (4 * hn).min(t.rows.len()).min(t.weights.len() / stride);
+    let w_hh = t.weights.get(t.hh_offset..).unwrap_or(&[]);
     // Gate activations, Q0.15, in order i, f, g, o.
     let mut gates = [0i16; 4 * MAX_HIDDEN];
-    for (r, (row, p)) in t
-        .weights
-        .chunks_exact(t.row_len.max(1))
-        .zip(t.rows)
-        .take(4 * hn)
-        .enumerate()
-    {
-        let acc_x = dot_i8_i16(&row[..t.inputs.min(row.len())], x);
-        let acc_h = dot_i8_i16(row.get(t.hh_offset..).unwrap_or(&[]), &state.h[..hn]);
-        let z = requant(p, acc_x, acc_h);
+    // One gate (H rows) at a time keeps the accumulators small on the stack.
+    let chunk = hn.max(1);
+    let mut acc_x = [0i32; MAX_HIDDEN];
+    let mut acc_h = [0i32; MAX_HIDDEN];
+    let mut r0 = 0;
+    while r0 < rows {
+        let n = chunk.min(rows - r0);
+        let off = r0 * stride;
+        dot_rows_i8_q15(
+            t.weights.get(off..).unwrap_or(&[]),
+            stride,
+            &xp[..xw],
+            &mut acc_x[..n],
+        );
+        dot_rows_i8_q15(
+            w_hh.get(off..).unwrap_or(&[]),
+            stride,
+            &hp[..hw],
+            &mut acc_h[..n],
+        );
         // Rows 2H..3H are the cell candidate g (tanh); the others are sigmoid gates.
-        gates[r] = if r / hn.max(1) == 2 {
-            tanh(z)
-        } else {
-            sigmoid(z)
-        };
+        let is_g = r0 / chunk == 2;
+        for (((g, p), &ax), &ah) in gates[r0..r0 + n]
+            .iter_mut()
+            .zip(&t.rows[r0..r0 + n])
+            .zip(&acc_x[..n])
+            .zip(&acc_h[..n])
+        {
+            let z = requant(p, ax, ah);
+            *g = if is_g { tanh(z) } else { sigmoid(z) };
+        }
+        r0 += n;
     }
     let cb = t.cell_frac_bits;
     // i·g is Q0.30; shifting by 30 - C puts it in the cell's Q(15-C).C.
