@@ -336,4 +336,59 @@ mod tests {
         }
         assert_eq!(dot_i8_i16(&[1, 2, 3], &[1, 1]), 3);
     }
+
+    #[test]
+    fn permuted_rows_match_wide_sum() {
+        // Extreme and mixed patterns, every length 0..=140 (odd ones included), 3 rows with
+        // junk weights past each row's length (they meet the activations' zero padding).
+        let stride = 148;
+        for n in 0..=MAX_ASM_VALUES {
+            let w: Vec<i8> = (0..3 * stride)
+                .map(|i| match (i % stride < n, i % 5) {
+                    (false, _) => (i * 37) as i8,
+                    (true, 0 | 3) => -128,
+                    (true, 1) => 127,
+                    (true, _) => (i * 13) as i8,
+                })
+                .collect();
+            let v: Vec<i16> = (0..n)
+                .map(|i| match i % 4 {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    2 => -(i as i16) * 97,
+                    _ => i16::MIN + i as i16,
+                })
+                .collect();
+            let mut act = [0u32; MAX_ASM_VALUES / 2];
+            let words = permute_q15(&v, &mut act);
+            assert_eq!(words, 2 * n.div_ceil(4));
+            let mut out = [0i32; 3];
+            dot_rows_i8_q15(&w, stride, &act[..words], &mut out);
+            for (r, &o) in out.iter().enumerate() {
+                let row = &w[r * stride..][..n];
+                let want: i64 = row.iter().zip(&v).map(|(&a, &b)| a as i64 * b as i64).sum();
+                assert_eq!(o as i64, want, "n = {n}, row {r}");
+                assert_eq!(o, dot_i8_i16(row, &v), "n = {n}, row {r}");
+            }
+        }
+    }
+
+    #[test]
+    fn permuted_rows_never_panic_on_odd_sizes() {
+        let act = [0x0002_0001u32, 0x0004_0003, 0x0006_0005, 0x0008_0007];
+        // v = 1, 3, 2, 4, 5, 7, 6, 8 in natural order.
+        let w = [1i8; 10];
+        let mut out = [0i32; 4];
+        dot_rows_i8_q15(&w, 6, &act, &mut out);
+        // Row 0: all 8 weights; row 1 starts at 6: 4 weights (1+3+2+4); row 2 starts past.
+        assert_eq!(out, [36, 10, 0, 0]);
+        dot_rows_i8_q15(&w, 0, &act[..3], &mut out);
+        assert_eq!(out, [10; 4]); // a trailing odd word is ignored
+        dot_rows_i8_q15(&[], usize::MAX, &act, &mut out);
+        assert_eq!(out, [0; 4]);
+        // Too short an output buffer for permute_q15: whole groups only.
+        let mut short = [0u32; 3];
+        assert_eq!(permute_q15(&[1, 2, 3, 4, 5], &mut short), 2);
+        assert_eq!(short[..2], [1 | 3 << 16, 2 | 4 << 16]);
+    }
 }
