@@ -55,6 +55,23 @@ impl Default for LstmState {
 fn requant(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
     // i64: acc_x < 2^26 and acc_h < 2^29 times a multiplier < 2^31 stay below 2^61.
     let z = acc_x as i64 * p.mx as i64 + acc_h as i64 * p.mh as i64;
+    let shift = p.shift as u32;
+    if (33..=62).contains(&shift) {
+        // The same bits in 32-bit arithmetic (no variable 64-bit shift on the M4):
+        // ⌊(z + 2^(s-1)) / 2^s⌋ = ⌊(⌊z / 2^(s-1)⌋ + 1) / 2⌋, and as s - 1 ≥ 32,
+        // ⌊z / 2^(s-1)⌋ = ⌊hi / 2^(s-33)⌋ with hi = ⌊z / 2^32⌋. (t >> 1) + (t & 1) is
+        // ⌊(t + 1) / 2⌋ without overflow; a saturating add before the i16 saturation gives the
+        // same result as the wide add.
+        let t = ((z >> 32) as i32) >> (shift - 33);
+        sat_i16(((t >> 1) + (t & 1)).saturating_add(p.bias_q12))
+    } else {
+        requant_wide(p, z)
+    }
+}
+
+/// [`requant`]'s definition: round, add the bias and saturate in `i64`.
+#[inline(always)]
+fn requant_wide(p: &LstmRowParams, z: i64) -> i16 {
     sat_i16_wide(round_shift_i64(z, p.shift as u32) + p.bias_q12 as i64)
 }
 
@@ -142,5 +159,44 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
             o as i32 * tanh(cell_to_q12(c, cb)) as i32,
             15,
         ));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requant_fast_path_equals_wide_definition() {
+        let mut x = 0x9E37_79B9u32;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x
+        };
+        let edges = [0, 1, -1, i32::MAX, i32::MIN, 1 << 28, -(1 << 28)];
+        for shift in 1..=62 {
+            for k in 0..4000 {
+                // A random or an edge value, within `bits` bits (the admitted ranges).
+                let pick = |r: u32, bits: u32| -> i32 {
+                    let v = if k < 49 {
+                        edges[(r % 7) as usize]
+                    } else {
+                        r as i32
+                    };
+                    v >> (32 - bits)
+                };
+                let p = LstmRowParams {
+                    mx: pick(next(), 31).wrapping_abs(),
+                    mh: pick(next(), 31).wrapping_abs(),
+                    bias_q12: pick(next(), 1 + next() % 32),
+                    shift,
+                };
+                let (ax, ah) = (pick(next(), 27), pick(next(), 30));
+                let z = ax as i64 * p.mx as i64 + ah as i64 * p.mh as i64;
+                assert_eq!(requant(&p, ax, ah), requant_wide(&p, z), "{p:?} {ax} {ah}");
+            }
+        }
     }
 }
