@@ -1,8 +1,32 @@
-//! The hot kernel: int8 × int16 dot products, the LSTM's and the dense layer's only inner loop.
+//! The hot kernels: int8 × int16 dot products, the LSTM's and the dense layer's only inner loop.
 //!
-//! This module is the one place allowed to hold DSP intrinsics (`unsafe`, documented where used).
-//! Today it is portable Rust; the Cortex-M4 instruction counts it reaches are measured by the
-//! QEMU bench (`scripts/qemu-bench.sh`) and reported in the README.
+//! `#![allow(unsafe_code)]`: this module is the crate's one documented exception to
+//! `#![deny(unsafe_code)]` (lib.rs, Cargo.toml), for the Cortex-M4 DSP kernel written in `asm!`.
+//! Every `unsafe` block states why it is sound; everything else in the crate stays safe.
+//!
+//! # Kernels
+//!
+//! - [`dot_i8_i16`]: one portable dot product (the reference; the dense layer uses it).
+//! - [`dot_rows_i8_q15`]: many rows of int8 weights (at a fixed stride) against one activation
+//!   vector that [`permute_q15`] has put in *SXTB16 lane order*. On `thumbv7em` with the DSP
+//!   extension it runs the assembly kernel below; elsewhere (the host, and any argument the
+//!   kernel cannot take) [`dot_rows_i8_q15_portable`], which defines the result.
+//!
+//! # The lane trick
+//!
+//! A little-endian word of four int8 weights `[b0 b1 b2 b3]` becomes two pairs of int16 lanes
+//! with one instruction each: `SXTB16 e, w` gives `(b0, b2)` and `SXTB16 o, w, ROR #8` gives
+//! `(b1, b3)`. `SMLAD acc, e, A, acc` then adds `b0·A.lo + b2·A.hi`, so if the activations are
+//! stored as the words `(v0 | v2 << 16)` and `(v1 | v3 << 16)` (that is [`permute_q15`]: once
+//! per step, 64 words for H = 128) no packing (`PKHBT`/`PKHTB`) is needed in the inner loop.
+//! Per 4 MACs the kernel spends 2 `SXTB16` + 2 `SMLAD` + its share of the loads: `LDM` brings
+//! 3 weight words and `LDM` 6 activation words per 12 MACs, so a block of 12 MACs is
+//! 14 instructions (1.17 per MAC), fully unrolled (entered at a computed address, no loop
+//! counter). Integer sums are exact and no partial sum can overflow for the admitted sizes,
+//! so the order of summation does not change the `i32` result: the kernel is bit-exact with
+//! the portable code.
+
+#![allow(unsafe_code)]
 
 /// Σ w[i]·v[i] over `min(w.len(), v.len())` elements: int8 weights × int16 activations,
 /// accumulated in `i32`.
@@ -28,6 +52,258 @@ pub fn dot_i8_i16(w: &[i8], v: &[i16]) -> i32 {
         tail += *a as i32 * *b as i32;
     }
     acc[0] + acc[1] + acc[2] + acc[3] + tail
+}
+
+/// Longest activation vector (in values) that [`dot_rows_i8_q15`] runs in assembly; longer ones
+/// take the portable path. 140 ≥ MAX_HIDDEN and ≥ MAX_INPUT.
+pub const MAX_ASM_VALUES: usize = 4 * (3 * ASM_BLOCKS + 2);
+/// Unrolled 3-word blocks in the assembly kernel.
+const ASM_BLOCKS: usize = 11;
+
+/// Writes `v` in SXTB16 lane order into `out`: each group of four values `(v0, v1, v2, v3)`
+/// becomes the words `v0 | v2 << 16` and `v1 | v3 << 16`, the last group zero-padded.
+/// Returns the number of words written, `2·ceil(v.len() / 4)`, less if `out` is too short
+/// (whole groups only).
+pub fn permute_q15(v: &[i16], out: &mut [u32]) -> usize {
+    let lo = |x: Option<&i16>| x.map_or(0, |&x| x as u16 as u32);
+    let mut n = 0;
+    for (g, o) in v.chunks(4).zip(out.chunks_exact_mut(2)) {
+        o[0] = lo(g.first()) | lo(g.get(2)) << 16;
+        o[1] = lo(g.get(1)) | lo(g.get(3)) << 16;
+        n += 2;
+    }
+    n
+}
+
+/// Σ w[k]·v[k] with v given in [`permute_q15`]'s lane order (`act`, two words per 4 values):
+/// `4·(act.len() / 2)` terms, or fewer if `w` is shorter (like [`dot_i8_i16`]).
+#[inline]
+pub fn dot_i8_q15_permuted(w: &[i8], act: &[u32]) -> i32 {
+    let mut acc = 0i32;
+    let mut wc = w.chunks_exact(4);
+    let mut ac = act.chunks_exact(2);
+    for (b, a) in (&mut wc).zip(&mut ac) {
+        let (e, o) = (a[0], a[1]);
+        acc += b[0] as i32 * (e as i16) as i32
+            + b[1] as i32 * (o as i16) as i32
+            + b[2] as i32 * ((e >> 16) as i16) as i32
+            + b[3] as i32 * ((o >> 16) as i16) as i32;
+    }
+    // A short last group of weights.
+    if let Some(a) = ac.next() {
+        let v = [a[0] as i16, a[1] as i16, (a[0] >> 16) as i16];
+        for (b, v) in wc.remainder().iter().zip(v) {
+            acc += *b as i32 * v as i32;
+        }
+    }
+    acc
+}
+
+/// `out[r] = Σ_k w[r·stride + k]·v[k]` for every `r < out.len()`, with v in [`permute_q15`]'s
+/// order (`act`): the reference of [`dot_rows_i8_q15`]. A row that runs past the end of `w`
+/// uses the weights that exist (as [`dot_i8_q15_permuted`]); one starting past it gives 0.
+pub fn dot_rows_i8_q15_portable(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) {
+    for (r, o) in out.iter_mut().enumerate() {
+        let row = r
+            .checked_mul(stride)
+            .and_then(|s| w.get(s..))
+            .unwrap_or(&[]);
+        *o = dot_i8_q15_permuted(row, act);
+    }
+}
+
+/// Many rows against one permuted activation vector: the same result as
+/// [`dot_rows_i8_q15_portable`] (`out[r] = Σ_k w[r·stride + k]·v[k]` over
+/// `k < 4·(act.len() / 2)`), for any arguments.
+///
+/// It runs in assembly on a Cortex-M with the DSP extension when every row fits in `w`, `w`
+/// starts on a 4-byte boundary, `stride` is a multiple of 4 and `act` holds at most
+/// [`MAX_ASM_VALUES`] values; otherwise (and on every other target) portably.
+/// No overflow for such sizes: 140 terms of at most 2^22 stay below 2^30.
+#[inline]
+pub fn dot_rows_i8_q15(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) {
+    #[cfg(slipguard_dsp)]
+    if arm::dot_rows(w, stride, act, out) {
+        return;
+    }
+    dot_rows_i8_q15_portable(w, stride, act, out)
+}
+
+#[cfg(slipguard_dsp)]
+mod arm {
+    use super::ASM_BLOCKS;
+
+    /// What the assembly reads (one pointer in r0; fields at fixed offsets).
+    #[repr(C)]
+    struct Params {
+        /// +0: first row's first weight word.
+        w: *const i8,
+        /// +4: the permuted activations.
+        act: *const u32,
+        /// +8: first output.
+        out: *mut i32,
+        /// +12: one past the last output.
+        out_end: *mut i32,
+        /// +16: bytes from the end of one row's segment to the start of the next.
+        skip: usize,
+        /// +20: number of 3-word blocks per row (≤ ASM_BLOCKS).
+        blocks: usize,
+        /// +24: words left after the blocks (0, 1 or 2).
+        rem: usize,
+    }
+
+    /// Runs the assembly kernel if the arguments suit it; returns false (and writes nothing)
+    /// if the caller must take the portable path.
+    #[inline]
+    pub(super) fn dot_rows(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) -> bool {
+        let words = act.len() / 2; // weight words per row
+        let rows = out.len();
+        let seg = 4 * words;
+        let fits = match rows.checked_sub(1) {
+            None => return true, // nothing to compute
+            Some(last) => last
+                .checked_mul(stride)
+                .and_then(|s| s.checked_add(seg))
+                .is_some_and(|end| end <= w.len()),
+        };
+        if !fits || words > 3 * ASM_BLOCKS + 2 || stride % 4 != 0 || w.as_ptr() as usize % 4 != 0 {
+            return false;
+        }
+        let p = Params {
+            w: w.as_ptr(),
+            act: act.as_ptr(),
+            out: out.as_mut_ptr(),
+            // In bounds: one past the end of `out`.
+            out_end: out.as_mut_ptr_range().end,
+            // Added to the pointer modulo 2^32, so overlapping rows (stride < seg) work too.
+            skip: stride.wrapping_sub(seg),
+            blocks: words / 3,
+            rem: words % 3,
+        };
+        // SAFETY: the checks above guarantee that the kernel only reads
+        // `w[r·stride .. r·stride + 4·words]` for r < rows (all inside `w`, word-aligned, since
+        // `w` and `stride` are), `act[..2·words]` (a `[u32]`, aligned) and writes `out[..rows]`
+        // (exclusively borrowed); `blocks ≤ ASM_BLOCKS` and `rem < 3` keep the computed jump
+        // inside the unrolled code. The asm saves and restores every callee-saved register it
+        // uses (r4-r11, lr) and sp, and declares r0-r3 and r12 clobbered.
+        unsafe { kernel(&p) };
+        true
+    }
+
+    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`dot_rows`] checks.
+    #[inline(never)]
+    unsafe fn kernel(p: &Params) {
+        // Registers inside the kernel:
+        //   r0 weight pointer, r1 activation pointer, r2 accumulator, r3-r5 three weight words,
+        //   r6-r11 six activation words, r12 scratch, lr output pointer.
+        // Stack (after the pushes): [sp] act, [sp+4] row entry, [sp+8] block entry,
+        //   [sp+12] skip, [sp+16] out_end.
+        // A block (14 instructions, 56 bytes, all 32-bit encodings) computes 12 MACs:
+        //   LDM 3 weight words, LDM 6 activation words, then per weight word
+        //   SXTB16 (odd bytes), SXTB16 (even bytes, in place), SMLAD, SMLAD.
+        // SAFETY: see the caller; every memory access is inside the buffers `p` describes.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "sub sp, sp, #20",
+                "ldr r1, [r0, #4]",
+                "str r1, [sp, #0]",
+                "ldr r1, [r0, #16]",
+                "str r1, [sp, #12]",
+                "ldr r1, [r0, #12]",
+                "str r1, [sp, #16]",
+                // Block entry = end of the unrolled blocks - blocks · 56 bytes (Thumb bit set).
+                "ldr r1, [r0, #20]",
+                // Every ADR sits on a word boundary: LLVM's Thumb ADR fixup measures from the
+                // instruction's PC + 4 unaligned, the CPU from Align(PC + 4, 4).
+                ".p2align 2",
+                "adr.w r2, 2f",
+                "movs r3, #56",
+                "mls r2, r1, r3, r2",
+                "orr r2, r2, #1",
+                "str r2, [sp, #8]",
+                // Row entry: the block entry, or a stub for 1 or 2 leftover words first.
+                "ldr r1, [r0, #24]",
+                "cbz r1, 4f",
+                ".p2align 2",
+                "adr.w r2, 5f",
+                "cmp r1, #1",
+                "beq 3f",
+                ".p2align 2",
+                "adr.w r2, 6f",
+                "3:",
+                "orr r2, r2, #1",
+                "4:",
+                "str r2, [sp, #4]",
+                "ldr lr, [r0, #8]",
+                "ldr r0, [r0, #0]",
+                // Row loop.
+                "1:",
+                "movs r2, #0",
+                "ldr r1, [sp, #0]",
+                "ldr pc, [sp, #4]",
+                "7:",
+                ".rept {blocks}",
+                "ldmia.w r0!, {{r3, r4, r5}}",
+                "ldmia.w r1!, {{r6, r7, r8, r9, r10, r11}}",
+                "sxtb16 r12, r3, ror #8",
+                "sxtb16 r3, r3",
+                "smlad r2, r3, r6, r2",
+                "smlad r2, r12, r7, r2",
+                "sxtb16 r12, r4, ror #8",
+                "sxtb16 r4, r4",
+                "smlad r2, r4, r8, r2",
+                "smlad r2, r12, r9, r2",
+                "sxtb16 r12, r5, ror #8",
+                "sxtb16 r5, r5",
+                "smlad r2, r5, r10, r2",
+                "smlad r2, r12, r11, r2",
+                ".endr",
+                "2:",
+                ".if (2b - 7b) != 56 * {blocks}",
+                ".error \"dsp kernel: unrolled block is not 56 bytes\"",
+                ".endif",
+                "str r2, [lr], #4",
+                "ldr r12, [sp, #12]",
+                "add r0, r0, r12",
+                "ldr r12, [sp, #16]",
+                "cmp lr, r12",
+                "bne 1b",
+                "b 9f",
+                // One leftover word.
+                "5:",
+                "ldr r3, [r0], #4",
+                "ldrd r6, r7, [r1], #8",
+                "sxtb16 r12, r3, ror #8",
+                "sxtb16 r3, r3",
+                "smlad r2, r3, r6, r2",
+                "smlad r2, r12, r7, r2",
+                "ldr pc, [sp, #8]",
+                // Two leftover words.
+                "6:",
+                "ldmia.w r0!, {{r3, r4}}",
+                "ldmia.w r1!, {{r6, r7, r8, r9}}",
+                "sxtb16 r12, r3, ror #8",
+                "sxtb16 r3, r3",
+                "smlad r2, r3, r6, r2",
+                "smlad r2, r12, r7, r2",
+                "sxtb16 r12, r4, ror #8",
+                "sxtb16 r4, r4",
+                "smlad r2, r4, r8, r2",
+                "smlad r2, r12, r9, r2",
+                "ldr pc, [sp, #8]",
+                "9:",
+                "add sp, sp, #20",
+                "pop {{r4-r11, lr}}",
+                blocks = const ASM_BLOCKS,
+                inout("r0") p as *const Params => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+    }
 }
 
 #[cfg(test)]
@@ -59,5 +335,60 @@ mod tests {
             assert_eq!(dot_i8_i16(&w, &v) as i64, want, "n = {n}");
         }
         assert_eq!(dot_i8_i16(&[1, 2, 3], &[1, 1]), 3);
+    }
+
+    #[test]
+    fn permuted_rows_match_wide_sum() {
+        // Extreme and mixed patterns, every length 0..=140 (odd ones included), 3 rows with
+        // junk weights past each row's length (they meet the activations' zero padding).
+        let stride = 148;
+        for n in 0..=MAX_ASM_VALUES {
+            let w: Vec<i8> = (0..3 * stride)
+                .map(|i| match (i % stride < n, i % 5) {
+                    (false, _) => (i * 37) as i8,
+                    (true, 0 | 3) => -128,
+                    (true, 1) => 127,
+                    (true, _) => (i * 13) as i8,
+                })
+                .collect();
+            let v: Vec<i16> = (0..n)
+                .map(|i| match i % 4 {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    2 => -(i as i16) * 97,
+                    _ => i16::MIN + i as i16,
+                })
+                .collect();
+            let mut act = [0u32; MAX_ASM_VALUES / 2];
+            let words = permute_q15(&v, &mut act);
+            assert_eq!(words, 2 * n.div_ceil(4));
+            let mut out = [0i32; 3];
+            dot_rows_i8_q15(&w, stride, &act[..words], &mut out);
+            for (r, &o) in out.iter().enumerate() {
+                let row = &w[r * stride..][..n];
+                let want: i64 = row.iter().zip(&v).map(|(&a, &b)| a as i64 * b as i64).sum();
+                assert_eq!(o as i64, want, "n = {n}, row {r}");
+                assert_eq!(o, dot_i8_i16(row, &v), "n = {n}, row {r}");
+            }
+        }
+    }
+
+    #[test]
+    fn permuted_rows_never_panic_on_odd_sizes() {
+        let act = [0x0002_0001u32, 0x0004_0003, 0x0006_0005, 0x0008_0007];
+        // v = 1, 3, 2, 4, 5, 7, 6, 8 in natural order.
+        let w = [1i8; 10];
+        let mut out = [0i32; 4];
+        dot_rows_i8_q15(&w, 6, &act, &mut out);
+        // Row 0: all 8 weights; row 1 starts at 6: 4 weights (1+3+2+4); row 2 starts past.
+        assert_eq!(out, [36, 10, 0, 0]);
+        dot_rows_i8_q15(&w, 0, &act[..3], &mut out);
+        assert_eq!(out, [10; 4]); // a trailing odd word is ignored
+        dot_rows_i8_q15(&[], usize::MAX, &act, &mut out);
+        assert_eq!(out, [0; 4]);
+        // Too short an output buffer for permute_q15: whole groups only.
+        let mut short = [0u32; 3];
+        assert_eq!(permute_q15(&[1, 2, 3, 4, 5], &mut short), 2);
+        assert_eq!(short[..2], [1 | 3 << 16, 2 | 4 << 16]);
     }
 }

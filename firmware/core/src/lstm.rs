@@ -15,11 +15,11 @@
 //! requantisation ([`LstmRowParams`]). All rounding is to nearest, so the host and the
 //! Cortex-M4 compute the same bits.
 
-use crate::MAX_HIDDEN;
 use crate::activation::{sigmoid, tanh};
 use crate::blob::{LstmRowParams, LstmTensors};
-use crate::dsp::dot_i8_i16;
+use crate::dsp::{dot_rows_i8_q15, permute_q15};
 use crate::fixed::{round_shift_i32, round_shift_i64, sat_i16, sat_i16_wide};
+use crate::{MAX_HIDDEN, MAX_INPUT};
 
 /// One LSTM's recurrent state for one channel.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -55,6 +55,23 @@ impl Default for LstmState {
 fn requant(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
     // i64: acc_x < 2^26 and acc_h < 2^29 times a multiplier < 2^31 stay below 2^61.
     let z = acc_x as i64 * p.mx as i64 + acc_h as i64 * p.mh as i64;
+    let shift = p.shift as u32;
+    if (33..=62).contains(&shift) {
+        // The same bits in 32-bit arithmetic (no variable 64-bit shift on the M4):
+        // ⌊(z + 2^(s-1)) / 2^s⌋ = ⌊(⌊z / 2^(s-1)⌋ + 1) / 2⌋, and as s - 1 ≥ 32,
+        // ⌊z / 2^(s-1)⌋ = ⌊hi / 2^(s-33)⌋ with hi = ⌊z / 2^32⌋. (t >> 1) + (t & 1) is
+        // ⌊(t + 1) / 2⌋ without overflow; a saturating add before the i16 saturation gives the
+        // same result as the wide add.
+        let t = ((z >> 32) as i32) >> (shift - 33);
+        sat_i16(((t >> 1) + (t & 1)).saturating_add(p.bias_q12))
+    } else {
+        requant_wide(p, z)
+    }
+}
+
+/// [`requant`]'s definition: round, add the bias and saturate in `i64`.
+#[inline(always)]
+fn requant_wide(p: &LstmRowParams, z: i64) -> i16 {
     sat_i16_wide(round_shift_i64(z, p.shift as u32) + p.bias_q12 as i64)
 }
 
@@ -78,24 +95,49 @@ fn cell_to_q12(c: i16, cell_frac_bits: u32) -> i16 {
 pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     let hn = t.hidden.min(MAX_HIDDEN);
     let x = &x[..t.inputs.min(x.len())];
+    // x and h in the dot kernel's lane order, zero-padded to whole groups of 4 (the weights'
+    // padding meets zeros, so the sums equal the plain dot products over I and H terms).
+    let mut xp = [0u32; MAX_INPUT.div_ceil(4) * 2];
+    let xw = permute_q15(x, &mut xp);
+    let mut hp = [0u32; MAX_HIDDEN / 2];
+    let hw = permute_q15(&state.h[..hn], &mut hp);
+    let stride = t.row_len.max(1);
+    let rows = (4 * hn).min(t.rows.len()).min(t.weights.len() / stride);
+    let w_hh = t.weights.get(t.hh_offset..).unwrap_or(&[]);
     // Gate activations, Q0.15, in order i, f, g, o.
     let mut gates = [0i16; 4 * MAX_HIDDEN];
-    for (r, (row, p)) in t
-        .weights
-        .chunks_exact(t.row_len.max(1))
-        .zip(t.rows)
-        .take(4 * hn)
-        .enumerate()
-    {
-        let acc_x = dot_i8_i16(&row[..t.inputs.min(row.len())], x);
-        let acc_h = dot_i8_i16(row.get(t.hh_offset..).unwrap_or(&[]), &state.h[..hn]);
-        let z = requant(p, acc_x, acc_h);
+    // One gate (H rows) at a time keeps the accumulators small on the stack.
+    let chunk = hn.max(1);
+    let mut acc_x = [0i32; MAX_HIDDEN];
+    let mut acc_h = [0i32; MAX_HIDDEN];
+    let mut r0 = 0;
+    while r0 < rows {
+        let n = chunk.min(rows - r0);
+        let off = r0 * stride;
+        dot_rows_i8_q15(
+            t.weights.get(off..).unwrap_or(&[]),
+            stride,
+            &xp[..xw],
+            &mut acc_x[..n],
+        );
+        dot_rows_i8_q15(
+            w_hh.get(off..).unwrap_or(&[]),
+            stride,
+            &hp[..hw],
+            &mut acc_h[..n],
+        );
         // Rows 2H..3H are the cell candidate g (tanh); the others are sigmoid gates.
-        gates[r] = if r / hn.max(1) == 2 {
-            tanh(z)
-        } else {
-            sigmoid(z)
-        };
+        let is_g = r0 / chunk == 2;
+        for (((g, p), &ax), &ah) in gates[r0..r0 + n]
+            .iter_mut()
+            .zip(&t.rows[r0..r0 + n])
+            .zip(&acc_x[..n])
+            .zip(&acc_h[..n])
+        {
+            let z = requant(p, ax, ah);
+            *g = if is_g { tanh(z) } else { sigmoid(z) };
+        }
+        r0 += n;
     }
     let cb = t.cell_frac_bits;
     // i·g is Q0.30; shifting by 30 - C puts it in the cell's Q(15-C).C.
@@ -117,5 +159,44 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
             o as i32 * tanh(cell_to_q12(c, cb)) as i32,
             15,
         ));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requant_fast_path_equals_wide_definition() {
+        let mut x = 0x9E37_79B9u32;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x
+        };
+        let edges = [0, 1, -1, i32::MAX, i32::MIN, 1 << 28, -(1 << 28)];
+        for shift in 1..=62 {
+            for k in 0..4000 {
+                // A random or an edge value, within `bits` bits (the admitted ranges).
+                let pick = |r: u32, bits: u32| -> i32 {
+                    let v = if k < 49 {
+                        edges[(r % 7) as usize]
+                    } else {
+                        r as i32
+                    };
+                    v >> (32 - bits)
+                };
+                let p = LstmRowParams {
+                    mx: pick(next(), 31).wrapping_abs(),
+                    mh: pick(next(), 31).wrapping_abs(),
+                    bias_q12: pick(next(), 1 + next() % 32),
+                    shift,
+                };
+                let (ax, ah) = (pick(next(), 27), pick(next(), 30));
+                let z = ax as i64 * p.mx as i64 + ah as i64 * p.mh as i64;
+                assert_eq!(requant(&p, ax, ah), requant_wide(&p, z), "{p:?} {ax} {ah}");
+            }
+        }
     }
 }

@@ -26,6 +26,7 @@ pub const INSNS_PER_TICK: u64 = 40;
 /// SysTick reload value: the whole 24-bit counter.
 pub const RELOAD: u32 = 0x00FF_FFFF;
 /// Address the instruction-count plugin watches (`-plugin libinsncount.so,addr=0x20300000`).
+#[allow(dead_code)] // a tool for ad-hoc profiling runs; no default bench places markers
 pub const MARKER_ADDR: usize = 0x2030_0000;
 
 const UNCALIBRATED: u32 = u32::MAX;
@@ -55,6 +56,7 @@ pub fn ticks_between(earlier: u32, later: u32) -> u32 {
 }
 
 /// Tells the insncount plugin (if loaded) "marker #`id`"; a store of about 2 instructions.
+#[allow(dead_code)] // a tool for ad-hoc profiling runs; no default bench places markers
 #[inline(always)]
 pub fn marker(id: u32) {
     // SAFETY: MARKER_ADDR is in the board's RAM and used by nothing else (see memory.x).

@@ -20,6 +20,9 @@ use cortex_m_semihosting::hprintln;
 use slipguard_core::blob::CRC32;
 use slipguard_core::const_math;
 use slipguard_core::decision::p_unstable;
+use slipguard_core::dsp::{
+    MAX_ASM_VALUES, dot_i8_i16, dot_rows_i8_q15, dot_rows_i8_q15_portable, permute_q15,
+};
 use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
 use slipguard_core::lstm::{self, LstmState};
 use slipguard_core::model::{ChannelState, Model};
@@ -54,6 +57,126 @@ fn record(out: slipguard_core::model::StepOutput, st: &ChannelState) -> [u8; REC
     [p[0], p[1], out.unstable as u8, 0, c[0], c[1], c[2], c[3]]
 }
 
+/// xorshift32: deterministic test data.
+struct Rng(u32);
+
+impl Rng {
+    fn next(&mut self) -> u32 {
+        let mut x = self.0;
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        self.0 = x;
+        x
+    }
+}
+
+/// Longest vector the kernel checks cover (every length 0..=MAX_N, odd ones included).
+const MAX_N: usize = 136;
+/// Rows per kernel call in the checks (several, so the row loop and the stride are exercised).
+const ROWS: usize = 3;
+/// Row stride in the checks: longer than the longest vector, a multiple of 4.
+const STRIDE: usize = MAX_N + 8;
+
+/// Weight rows, word-aligned like the blob (the assembly kernel needs it), plus 4 spare bytes
+/// so that a misaligned view of the same rows can test the portable fallback.
+#[repr(C, align(4))]
+struct Rows([i8; ROWS * STRIDE + 4]);
+
+/// The assembly kernel (on this target) against the portable kernel and against the plain
+/// dot product, for every length 0..=MAX_N, on random and on extreme data. Weights past a
+/// row's length are random junk (they meet the zero padding of the permuted activations).
+fn check_dsp_kernel() {
+    hprintln!(
+        "dsp kernel: assembly up to {} values per row",
+        MAX_ASM_VALUES
+    );
+    let mut rng = Rng(0x1234_5678);
+    // Weight and activation patterns: random, and the extremes whose products are largest.
+    type Pattern = fn(&mut Rng, usize) -> (i8, i16);
+    let patterns: [(&str, Pattern); 5] = [
+        ("random", |r, _| (r.next() as i8, (r.next() >> 7) as i16)),
+        ("-128 x -32768", |_, _| (-128, i16::MIN)),
+        ("127 x 32767", |_, _| (127, i16::MAX)),
+        ("-128 x 32767 / 127 x -32768", |_, i| {
+            if i % 2 == 0 {
+                (-128, i16::MAX)
+            } else {
+                (127, i16::MIN)
+            }
+        }),
+        ("random extremes", |r, _| {
+            let x = r.next();
+            (
+                if x & 1 == 0 { -128 } else { 127 },
+                if x & 2 == 0 { i16::MIN } else { i16::MAX },
+            )
+        }),
+    ];
+    for (name, pattern) in patterns {
+        let mut vs_portable = None;
+        let mut vs_plain = None;
+        let mut vs_misaligned = None;
+        for n in 0..=MAX_N {
+            let mut w = Rows([0; ROWS * STRIDE + 4]);
+            let mut v = [0i16; MAX_N];
+            for (i, x) in w.0.iter_mut().enumerate() {
+                *x = if i % STRIDE < n {
+                    pattern(&mut rng, i).0
+                } else {
+                    rng.next() as i8
+                };
+            }
+            for (i, x) in v[..n].iter_mut().enumerate() {
+                *x = pattern(&mut rng, i).1;
+            }
+            let mut act = [0u32; MAX_N / 2];
+            let words = permute_q15(&v[..n], &mut act);
+            let act = &act[..words];
+            let rows = &w.0[..ROWS * STRIDE];
+            let (mut fast, mut slow) = ([0i32; ROWS], [0i32; ROWS]);
+            dot_rows_i8_q15(black_box(rows), STRIDE, act, &mut fast);
+            dot_rows_i8_q15_portable(rows, STRIDE, act, &mut slow);
+            let plain: [i32; ROWS] =
+                core::array::from_fn(|r| dot_i8_i16(&rows[r * STRIDE..][..n], &v[..n]));
+            if fast != slow && vs_portable.is_none() {
+                vs_portable = Some((n, fast, slow));
+            }
+            if fast != plain && vs_plain.is_none() {
+                vs_plain = Some((n, fast, plain));
+            }
+            // Misaligned rows take the portable path: same numbers.
+            let odd = &w.0[1..ROWS * STRIDE + 1];
+            let mut mis = [0i32; ROWS];
+            let mut want = [0i32; ROWS];
+            dot_rows_i8_q15(black_box(odd), STRIDE, act, &mut mis);
+            dot_rows_i8_q15_portable(odd, STRIDE, act, &mut want);
+            if mis != want && vs_misaligned.is_none() {
+                vs_misaligned = Some((n, mis, want));
+            }
+        }
+        hprintln!("dsp kernel, {}:", name);
+        harness::check_equal(
+            "  asm == portable (first n, got, want)",
+            &vs_portable,
+            &None,
+        );
+        harness::check_equal("  asm == dot_i8_i16 (first n, got, want)", &vs_plain, &None);
+        harness::check_equal("  misaligned rows == portable", &vs_misaligned, &None);
+    }
+    // Rows that do not all fit in the weights: the kernel must fall back, not read past them.
+    let w = Rows([1; ROWS * STRIDE + 4]);
+    let act = [0x0001_0001u32; 8];
+    let (mut fast, mut slow) = ([0i32; 4], [0i32; 4]);
+    dot_rows_i8_q15(&w.0[..ROWS * STRIDE], STRIDE, &act, &mut fast);
+    dot_rows_i8_q15_portable(&w.0[..ROWS * STRIDE], STRIDE, &act, &mut slow);
+    harness::check_equal(
+        "dsp kernel, rows past the weights == portable",
+        &fast,
+        &slow,
+    );
+}
+
 #[entry]
 fn main() -> ! {
     let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
@@ -71,6 +194,8 @@ fn main() -> ! {
         &const_math::exp(black_box(0.731_25)).to_bits(),
         &EXP_CONST.to_bits(),
     );
+
+    check_dsp_kernel();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,
