@@ -1,3 +1,6 @@
-fn main() {
-    println!("slipguard: see `slipguard --help`");
+//! `slipguard`: the host command line. Subcommands live in `cli/`, one module each.
+mod cli;
+
+fn main() -> std::process::ExitCode {
+    cli::main()
 }

@@ -1,0 +1,275 @@
+//! PNG plots (plotters, bitmap backend) of trials, sim-vs-real pairs and spectra.
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use crate::error::{DataError, Result};
+use crate::labels::TrialLabels;
+use crate::trial::Trial;
+
+const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(23, 190, 207),
+];
+
+fn perr(path: &Path, e: impl std::fmt::Display) -> DataError {
+    DataError::Plot {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+/// Channels to draw: contact channels, else the 3 with the largest maxima.
+fn shown_channels(t: &Trial) -> Vec<usize> {
+    let c = t.contact_channels();
+    if !c.is_empty() {
+        return c;
+    }
+    let mut idx: Vec<usize> = (0..t.n_channels()).collect();
+    let max = |c: usize| t.samples[c].iter().copied().fold(0.0f32, f32::max);
+    idx.sort_by(|&a, &b| max(b).total_cmp(&max(a)));
+    idx.truncate(3);
+    idx
+}
+
+/// Draw one trial into an area: contact channels, their sum (black), marks as
+/// vertical lines (grasp green, lift orange, l2 purple, drop red), and the
+/// unstable label region shaded red.
+fn draw_trial<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    t: &Trial,
+    labels: Option<&TrialLabels>,
+    title: &str,
+    xmax: Option<usize>,
+) -> std::result::Result<(), String> {
+    let chans = shown_channels(t);
+    let sum = t.sum_over(&chans);
+    let n = xmax.unwrap_or(t.n_steps()).min(t.n_steps());
+    let ymax = sum[..n].iter().copied().fold(1.0f32, f32::max) * 1.08;
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 16))
+        .margin(8)
+        .x_label_area_size(30)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f32..n as f32, 0f32..ymax)
+        .map_err(|e| e.to_string())?;
+    chart
+        .configure_mesh()
+        .x_desc("step")
+        .y_desc(t.unit.to_string())
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(|e| e.to_string())?;
+    if let Some(l) = labels
+        && let Some(from) = l.unstable_from
+    {
+        let end = (l.seq_start + l.seq_len).min(n) as f32;
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(from as f32, 0.0), (end, ymax)],
+                RED.mix(0.12).filled(),
+            )))
+            .map_err(|e| e.to_string())?;
+    }
+    for (k, &c) in chans.iter().enumerate() {
+        let col = PALETTE[k % PALETTE.len()];
+        chart
+            .draw_series(LineSeries::new(
+                (0..n).map(|i| (i as f32, t.samples[c][i])),
+                col.stroke_width(1),
+            ))
+            .map_err(|e| e.to_string())?
+            .label(t.channel_names[c].clone())
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col));
+    }
+    chart
+        .draw_series(LineSeries::new(
+            (0..n).map(|i| (i as f32, sum[i])),
+            BLACK.stroke_width(2),
+        ))
+        .map_err(|e| e.to_string())?
+        .label("sum")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], BLACK));
+    let marks = [
+        (t.marks.grasp_start, RGBColor(0, 150, 0), "grasp"),
+        (t.marks.lift_start, RGBColor(230, 140, 0), "lift"),
+        (t.marks.open_start, RGBColor(130, 60, 170), "l2"),
+        (t.drop_step, RGBColor(220, 0, 0), "drop"),
+    ];
+    for (m, col, name) in marks {
+        if let Some(m) = m.filter(|&m| m < n) {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    [(m as f32, 0.0), (m as f32, ymax)],
+                    6,
+                    4,
+                    col.stroke_width(2),
+                ))
+                .map_err(|e| e.to_string())?
+                .label(format!("{name} {m}"))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
+        }
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font(("sans-serif", 11))
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+/// One trial with its marks and labels.
+pub fn plot_trial(t: &Trial, labels: Option<&TrialLabels>, path: &Path) -> Result<()> {
+    let root = BitMapBackend::new(path, (1100, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| perr(path, e))?;
+    let title = format!("{} ({}, {} Hz)", t.id, t.outcome, t.rate_hz);
+    draw_trial(&root, t, labels, &title, None).map_err(|e| perr(path, e))?;
+    root.present().map_err(|e| perr(path, e))
+}
+
+/// Rows of (left, right) trials side by side, e.g. real vs simulated.
+pub fn plot_pairs(rows: &[(&Trial, &Trial)], path: &Path, xmax: Option<usize>) -> Result<()> {
+    let h = 330 * rows.len() as u32;
+    let root = BitMapBackend::new(path, (1400, h.max(330))).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| perr(path, e))?;
+    let cells = root.split_evenly((rows.len(), 2));
+    for (i, (a, b)) in rows.iter().enumerate() {
+        for (j, t) in [a, b].iter().enumerate() {
+            let kind = if t.source.starts_with("slipguard simulate") {
+                "sim"
+            } else {
+                "real"
+            };
+            let title = format!("{kind}: {} ({})", t.id, t.outcome);
+            draw_trial(&cells[2 * i + j], t, None, &title, xmax).map_err(|e| perr(path, e))?;
+        }
+    }
+    root.present().map_err(|e| perr(path, e))
+}
+
+/// Spectra: one line per (name, values, colour) against `freqs`.
+pub fn plot_spectra(
+    title: &str,
+    freqs: &[f64],
+    series: &[(String, Vec<f64>, RGBColor)],
+    path: &Path,
+) -> Result<()> {
+    let root = BitMapBackend::new(path, (900, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| perr(path, e))?;
+    let ymax = series
+        .iter()
+        .flat_map(|s| s.1.iter().copied())
+        .fold(1e-9f64, f64::max)
+        * 1.1;
+    let xmax = freqs.last().copied().unwrap_or(8.35);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 18))
+        .margin(10)
+        .x_label_area_size(35)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f64..xmax, 0f64..ymax)
+        .map_err(|e| perr(path, e))?;
+    chart
+        .configure_mesh()
+        .x_desc("Hz")
+        .y_desc("share of power (DC excluded)")
+        .draw()
+        .map_err(|e| perr(path, e))?;
+    for (name, v, col) in series {
+        let col = *col;
+        chart
+            .draw_series(LineSeries::new(
+                freqs.iter().copied().zip(v.iter().copied()),
+                col.stroke_width(2),
+            ))
+            .map_err(|e| perr(path, e))?
+            .label(name.clone())
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .draw()
+        .map_err(|e| perr(path, e))?;
+    root.present().map_err(|e| perr(path, e))
+}
+
+/// All channels of trials stacked vertically (for suction: 71 Hz over 17.75 Hz).
+pub fn plot_stack(trials: &[&Trial], path: &Path) -> Result<()> {
+    let root =
+        BitMapBackend::new(path, (1100, 330 * trials.len().max(1) as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| perr(path, e))?;
+    let cells = root.split_evenly((trials.len().max(1), 1));
+    for (t, area) in trials.iter().zip(&cells) {
+        let n = t.n_steps();
+        let (lo, hi) = t
+            .samples
+            .iter()
+            .flatten()
+            .fold((f32::MAX, f32::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+        let mut chart = ChartBuilder::on(area)
+            .caption(
+                format!("{} ({}, {} Hz)", t.id, t.outcome, t.rate_hz),
+                ("sans-serif", 15),
+            )
+            .margin(8)
+            .x_label_area_size(30)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0f32..n as f32, (lo - 500.0)..(hi + 500.0))
+            .map_err(|e| perr(path, e))?;
+        chart
+            .configure_mesh()
+            .x_desc("step")
+            .y_desc(t.unit.to_string())
+            .draw()
+            .map_err(|e| perr(path, e))?;
+        for c in 0..t.n_channels() {
+            let col = PALETTE[c % PALETTE.len()];
+            chart
+                .draw_series(LineSeries::new(
+                    (0..n).map(|i| (i as f32, t.samples[c][i])),
+                    col.stroke_width(1),
+                ))
+                .map_err(|e| perr(path, e))?
+                .label(t.channel_names[c].clone())
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col));
+        }
+        let marks = [
+            (t.marks.grasp_start, RGBColor(0, 150, 0)),
+            (t.marks.lift_start, RGBColor(230, 140, 0)),
+            (t.marks.open_start, RGBColor(130, 60, 170)),
+            (t.drop_step, RGBColor(220, 0, 0)),
+        ];
+        for (m, col) in marks {
+            if let Some(m) = m {
+                chart
+                    .draw_series(DashedLineSeries::new(
+                        [(m as f32, lo - 500.0), (m as f32, hi + 500.0)],
+                        6,
+                        4,
+                        col.stroke_width(2),
+                    ))
+                    .map_err(|e| perr(path, e))?;
+            }
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.3))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()
+            .map_err(|e| perr(path, e))?;
+    }
+    root.present().map_err(|e| perr(path, e))
+}
