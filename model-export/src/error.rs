@@ -124,7 +124,11 @@ impl ExportError {
         }
     }
     /// Shorthand for [`ExportError::Shape`].
-    pub fn shape(tensor: impl Into<String>, expected: impl Into<String>, found: impl Into<String>) -> Self {
+    pub fn shape(
+        tensor: impl Into<String>,
+        expected: impl Into<String>,
+        found: impl Into<String>,
+    ) -> Self {
         Self::Shape {
             tensor: tensor.into(),
             expected: expected.into(),
@@ -158,7 +162,10 @@ impl std::fmt::Display for ExportError {
                 tensor,
                 expected,
                 found,
-            } => write!(f, "tensor `{tensor}` has shape {found}, expected {expected}"),
+            } => write!(
+                f,
+                "tensor `{tensor}` has shape {found}, expected {expected}"
+            ),
             Self::NotFinite { tensor, index } => write!(
                 f,
                 "tensor `{tensor}` has a NaN or infinite value at flat index {index}"

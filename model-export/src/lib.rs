@@ -9,6 +9,7 @@ pub mod calib;
 pub mod error;
 pub mod import;
 pub mod inspect;
+pub mod pipeline;
 pub mod report;
 pub mod settings;
 pub mod write;

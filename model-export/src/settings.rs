@@ -16,24 +16,80 @@ use crate::error::{ExportError, Result};
 /// Every key the exporter understands, with its default and meaning (printed by `--help` and
 /// documented in docs/export.md).
 pub const KEYS: &[(&str, &str, &str)] = &[
-    ("slipguard.format", "1", "settings format version; must be 1 when present"),
-    ("variant", "data-stft-lstm", "a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm"),
-    ("force_diff", "false", "true: d(t) = x(t) - x(t-1) is an input after the force"),
-    ("sample_rate_hz", "16.7", "sample rate the model was trained at, Hz (stored in mHz)"),
+    (
+        "slipguard.format",
+        "1",
+        "settings format version; must be 1 when present",
+    ),
+    (
+        "variant",
+        "data-stft-lstm",
+        "a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm",
+    ),
+    (
+        "force_diff",
+        "false",
+        "true: d(t) = x(t) - x(t-1) is an input after the force",
+    ),
+    (
+        "sample_rate_hz",
+        "16.7",
+        "sample rate the model was trained at, Hz (stored in mHz)",
+    ),
     ("input_unit", "mN", "mN or counts"),
-    ("input_offset", "0", "raw value mapped to 0.0 (integer, input unit)"),
-    ("input_full_scale", "10000", "raw span mapped to +1.0 (integer > 0, input unit)"),
-    ("stft_window", "20", "STFT window N (4..=48); ignored by variant a"),
+    (
+        "input_offset",
+        "0",
+        "raw value mapped to 0.0 (integer, input unit)",
+    ),
+    (
+        "input_full_scale",
+        "10000",
+        "raw span mapped to +1.0 (integer > 0, input unit)",
+    ),
+    (
+        "stft_window",
+        "20",
+        "STFT window N (4..=48); ignored by variant a",
+    ),
     ("stft_first_bin", "1", "first DFT bin"),
-    ("stft_bins", "10", "number of bins (1..=16, last bin <= N/2)"),
+    (
+        "stft_bins",
+        "10",
+        "number of bins (1..=16, last bin <= N/2)",
+    ),
     ("stft_shape", "rectangular", "rectangular or hann"),
     ("threshold", "0.5", "p(unstable) threshold in (0, 1)"),
-    ("raise_after", "1", "steps >= threshold before the flag rises (1..=255)"),
-    ("clear_after", "1", "steps < threshold before the flag clears (1..=255)"),
-    ("norm_mean", "", "JSON array: mean of each raw feature [force, d(t), bands...]"),
-    ("norm_std", "", "JSON array: standard deviation of each raw feature (> 0)"),
-    ("name", "", "model name, ASCII, at most 12 bytes (default: the input file's stem)"),
-    ("model_id", "", "u32 (decimal or 0x hex); default: CRC-32 of the float weights"),
+    (
+        "raise_after",
+        "1",
+        "steps >= threshold before the flag rises (1..=255)",
+    ),
+    (
+        "clear_after",
+        "1",
+        "steps < threshold before the flag clears (1..=255)",
+    ),
+    (
+        "norm_mean",
+        "",
+        "JSON array: mean of each raw feature [force, d(t), bands...]",
+    ),
+    (
+        "norm_std",
+        "",
+        "JSON array: standard deviation of each raw feature (> 0)",
+    ),
+    (
+        "name",
+        "",
+        "model name, ASCII, at most 12 bytes (default: the input file's stem)",
+    ),
+    (
+        "model_id",
+        "",
+        "u32 (decimal or 0x hex); default: CRC-32 of the float weights",
+    ),
 ];
 
 /// Merged settings, as strings, before parsing.
@@ -140,7 +196,10 @@ impl Settings {
         })?;
         let out: Vec<f32> = parsed.iter().map(|&x| x as f32).collect();
         if let Some(i) = out.iter().position(|x| !x.is_finite()) {
-            return Err(ExportError::settings(key, format!("entry {i} is not finite")));
+            return Err(ExportError::settings(
+                key,
+                format!("entry {i} is not finite"),
+            ));
         }
         Ok(Some(out))
     }
@@ -159,16 +218,29 @@ impl Settings {
         let force_diff = match self.req("force_diff")?.trim() {
             "true" | "1" | "yes" => true,
             "false" | "0" | "no" => false,
-            other => return Err(ExportError::settings("force_diff", format!("`{other}` is not true/false"))),
+            other => {
+                return Err(ExportError::settings(
+                    "force_diff",
+                    format!("`{other}` is not true/false"),
+                ));
+            }
         };
         let rate: f64 = self.parse("sample_rate_hz")?;
         if !(rate > 0.0 && rate < 4.0e6) {
-            return Err(ExportError::settings("sample_rate_hz", format!("{rate} Hz is out of range")));
+            return Err(ExportError::settings(
+                "sample_rate_hz",
+                format!("{rate} Hz is out of range"),
+            ));
         }
         let input_unit = match self.req("input_unit")?.trim() {
             "mN" | "mn" | "millinewton" => InputUnit::MilliNewton,
             "counts" | "count" => InputUnit::Counts,
-            other => return Err(ExportError::settings("input_unit", format!("`{other}` is not mN or counts"))),
+            other => {
+                return Err(ExportError::settings(
+                    "input_unit",
+                    format!("`{other}` is not mN or counts"),
+                ));
+            }
         };
         let input_offset: i32 = self.parse("input_offset")?;
         let input_full_scale: i32 = self.parse("input_full_scale")?;
@@ -180,7 +252,10 @@ impl Settings {
                 "rectangular" | "rect" => WindowShape::Rectangular,
                 "hann" => WindowShape::Hann,
                 other => {
-                    return Err(ExportError::settings("stft_shape", format!("`{other}` is not rectangular or hann")));
+                    return Err(ExportError::settings(
+                        "stft_shape",
+                        format!("`{other}` is not rectangular or hann"),
+                    ));
                 }
             };
             let s = StftConfig {
@@ -189,8 +264,9 @@ impl Settings {
                 n_bins: self.parse("stft_bins")?,
                 shape,
             };
-            s.validate()
-                .map_err(|e| ExportError::settings("stft_window/stft_first_bin/stft_bins", e.to_string()))?;
+            s.validate().map_err(|e| {
+                ExportError::settings("stft_window/stft_first_bin/stft_bins", e.to_string())
+            })?;
             s
         } else {
             StftConfig {
@@ -202,18 +278,27 @@ impl Settings {
         };
         let threshold: f64 = self.parse("threshold")?;
         if !(threshold > 0.0 && threshold < 1.0) {
-            return Err(ExportError::settings("threshold", format!("{threshold} is not in (0, 1)")));
+            return Err(ExportError::settings(
+                "threshold",
+                format!("{threshold} is not in (0, 1)"),
+            ));
         }
         let raise_after: u8 = self.parse("raise_after")?;
         let clear_after: u8 = self.parse("clear_after")?;
         if raise_after == 0 || clear_after == 0 {
-            return Err(ExportError::settings("raise_after/clear_after", "must be >= 1"));
+            return Err(ExportError::settings(
+                "raise_after/clear_after",
+                "must be >= 1",
+            ));
         }
         let mut name = [0u8; 12];
         let named = match self.get("name") {
             Some(n) if !n.is_empty() => {
                 if !n.is_ascii() || n.len() > 12 {
-                    return Err(ExportError::settings("name", format!("`{n}` is not ASCII of at most 12 bytes")));
+                    return Err(ExportError::settings(
+                        "name",
+                        format!("`{n}` is not ASCII of at most 12 bytes"),
+                    ));
                 }
                 name[..n.len()].copy_from_slice(n.as_bytes());
                 true
@@ -227,7 +312,9 @@ impl Settings {
                     Some(h) => u32::from_str_radix(h, 16).ok(),
                     None => v.parse().ok(),
                 };
-                Some(parsed.ok_or_else(|| ExportError::settings("model_id", format!("`{v}` is not a u32")))?)
+                Some(parsed.ok_or_else(|| {
+                    ExportError::settings("model_id", format!("`{v}` is not a u32"))
+                })?)
             }
             _ => None,
         };
@@ -267,7 +354,9 @@ pub fn parse_variant(v: &str) -> Result<Variant> {
         other => {
             return Err(ExportError::settings(
                 "variant",
-                format!("`{other}` is not one of a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm"),
+                format!(
+                    "`{other}` is not one of a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm"
+                ),
             ));
         }
     })
@@ -278,7 +367,10 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
     let mut m = BTreeMap::new();
     m.insert("variant".into(), config.variant.name().into());
     m.insert("force_diff".into(), config.force_diff.to_string());
-    m.insert("sample_rate_hz".into(), format!("{}", config.sample_rate_mhz as f64 / 1000.0));
+    m.insert(
+        "sample_rate_hz".into(),
+        format!("{}", config.sample_rate_mhz as f64 / 1000.0),
+    );
     m.insert(
         "input_unit".into(),
         match config.input_unit {
@@ -288,7 +380,10 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
         .into(),
     );
     m.insert("input_offset".into(), config.input_offset.to_string());
-    m.insert("input_full_scale".into(), config.input_full_scale.to_string());
+    m.insert(
+        "input_full_scale".into(),
+        config.input_full_scale.to_string(),
+    );
     if config.variant.uses_bands() {
         m.insert("stft_window".into(), config.stft.window_len.to_string());
         m.insert("stft_first_bin".into(), config.stft.first_bin.to_string());
@@ -302,7 +397,10 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
             .into(),
         );
     }
-    m.insert("threshold".into(), format!("{}", config.threshold_q15 as f64 / 32768.0));
+    m.insert(
+        "threshold".into(),
+        format!("{}", config.threshold_q15 as f64 / 32768.0),
+    );
     m.insert("raise_after".into(), config.raise_after.to_string());
     m.insert("clear_after".into(), config.clear_after.to_string());
     m.insert("name".into(), config.name_str().into());

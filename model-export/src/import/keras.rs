@@ -65,7 +65,8 @@ fn inbound_names(v: &Value, out: &mut Vec<String>) {
 }
 
 fn parse_config(path: &Path, text: &str) -> Result<(Vec<LayerInfo>, bool)> {
-    let v: Value = serde_json::from_str(text).map_err(|e| ExportError::format(path, format!("Keras config is not JSON: {e}")))?;
+    let v: Value = serde_json::from_str(text)
+        .map_err(|e| ExportError::format(path, format!("Keras config is not JSON: {e}")))?;
     let top = v.get("class_name").and_then(Value::as_str).unwrap_or("");
     let sequential = top == "Sequential";
     let layers = v
@@ -75,7 +76,11 @@ fn parse_config(path: &Path, text: &str) -> Result<(Vec<LayerInfo>, bool)> {
         .ok_or_else(|| ExportError::format(path, "Keras config has no config.layers"))?;
     let mut out = Vec::new();
     for l in layers {
-        let class = l.get("class_name").and_then(Value::as_str).unwrap_or("").to_string();
+        let class = l
+            .get("class_name")
+            .and_then(Value::as_str)
+            .unwrap_or("")
+            .to_string();
         let config = l.get("config").cloned().unwrap_or(Value::Null);
         let name = l
             .get("name")
@@ -87,15 +92,31 @@ fn parse_config(path: &Path, text: &str) -> Result<(Vec<LayerInfo>, bool)> {
         if let Some(ib) = l.get("inbound_nodes") {
             inbound_names(ib, &mut inbound);
         }
-        out.push(LayerInfo { class, name, config, inbound });
+        out.push(LayerInfo {
+            class,
+            name,
+            config,
+            inbound,
+        });
     }
     Ok((out, sequential))
 }
 
 /// Checks the config and returns (LSTM layer names in layer order, the Dense layer, the
 /// concatenation order of LSTM names if any).
-fn check_config(layers: &[LayerInfo], sequential: bool, notes: &mut Vec<String>) -> Result<(Vec<LayerInfo>, LayerInfo, Option<Vec<String>>)> {
-    const PASSIVE: &[&str] = &["InputLayer", "GetItem", "Concatenate", "Dropout", "SpatialDropout1D", "Activation"];
+fn check_config(
+    layers: &[LayerInfo],
+    sequential: bool,
+    notes: &mut Vec<String>,
+) -> Result<(Vec<LayerInfo>, LayerInfo, Option<Vec<String>>)> {
+    const PASSIVE: &[&str] = &[
+        "InputLayer",
+        "GetItem",
+        "Concatenate",
+        "Dropout",
+        "SpatialDropout1D",
+        "Activation",
+    ];
     let mut lstms = Vec::new();
     let mut denses = Vec::new();
     for l in layers {
@@ -106,7 +127,10 @@ fn check_config(layers: &[LayerInfo], sequential: bool, notes: &mut Vec<String>)
                 let act = act_name(c.get("activation"));
                 let rec = act_name(c.get("recurrent_activation"));
                 if act != "tanh" {
-                    return Err(ExportError::unsupported(format!("{label} activation"), format!("activation={act}; the firmware's cell uses tanh")));
+                    return Err(ExportError::unsupported(
+                        format!("{label} activation"),
+                        format!("activation={act}; the firmware's cell uses tanh"),
+                    ));
                 }
                 if rec != "sigmoid" {
                     let hint = if rec == "hard_sigmoid" {
@@ -114,27 +138,45 @@ fn check_config(layers: &[LayerInfo], sequential: bool, notes: &mut Vec<String>)
                     } else {
                         ""
                     };
-                    return Err(ExportError::unsupported(format!("{label} recurrent_activation"), format!("recurrent_activation={rec}; the firmware needs sigmoid{hint}")));
+                    return Err(ExportError::unsupported(
+                        format!("{label} recurrent_activation"),
+                        format!("recurrent_activation={rec}; the firmware needs sigmoid{hint}"),
+                    ));
                 }
                 if c.get("go_backwards").and_then(Value::as_bool) == Some(true) {
-                    return Err(ExportError::unsupported(label, "go_backwards=True: the firmware runs causal, forward-only LSTMs"));
+                    return Err(ExportError::unsupported(
+                        label,
+                        "go_backwards=True: the firmware runs causal, forward-only LSTMs",
+                    ));
                 }
                 if c.get("stateful").and_then(Value::as_bool) == Some(true) {
                     notes.push(format!("{label} is stateful; the firmware keeps state per channel and resets it at grasp start"));
                 }
-                if l.inbound.iter().any(|n| layers.iter().any(|o| o.name == *n && o.class == "LSTM")) || (sequential && !lstms.is_empty()) {
-                    return Err(ExportError::unsupported(label, "stacked LSTMs: the firmware runs one LSTM layer per path"));
+                if l.inbound
+                    .iter()
+                    .any(|n| layers.iter().any(|o| o.name == *n && o.class == "LSTM"))
+                    || (sequential && !lstms.is_empty())
+                {
+                    return Err(ExportError::unsupported(
+                        label,
+                        "stacked LSTMs: the firmware runs one LSTM layer per path",
+                    ));
                 }
                 lstms.push(l.clone());
             }
             "Dense" => {
                 let units = l.config.get("units").and_then(Value::as_u64).unwrap_or(0);
                 let act = act_name(l.config.get("activation"));
-                let ok = matches!((units, act.as_str()), (2, "softmax" | "linear") | (1, "sigmoid" | "linear"));
+                let ok = matches!(
+                    (units, act.as_str()),
+                    (2, "softmax" | "linear") | (1, "sigmoid" | "linear")
+                );
                 if !ok {
                     return Err(ExportError::unsupported(
                         format!("{label} activation"),
-                        format!("Dense({units}, activation={act}); the firmware needs Dense(2) with softmax or linear logits, or Dense(1) with sigmoid"),
+                        format!(
+                            "Dense({units}, activation={act}); the firmware needs Dense(2) with softmax or linear logits, or Dense(1) with sigmoid"
+                        ),
                     ));
                 }
                 denses.push(l.clone());
@@ -142,25 +184,45 @@ fn check_config(layers: &[LayerInfo], sequential: bool, notes: &mut Vec<String>)
             "Activation" => {
                 let act = act_name(l.config.get("activation"));
                 if !matches!(act.as_str(), "softmax" | "linear") || denses.is_empty() {
-                    return Err(ExportError::unsupported(label, format!("activation {act} on the data path; only a final softmax is allowed")));
+                    return Err(ExportError::unsupported(
+                        label,
+                        format!(
+                            "activation {act} on the data path; only a final softmax is allowed"
+                        ),
+                    ));
                 }
             }
             "Bidirectional" => {
-                return Err(ExportError::unsupported(label, "Bidirectional LSTM: the firmware runs causal, forward-only LSTMs"));
+                return Err(ExportError::unsupported(
+                    label,
+                    "Bidirectional LSTM: the firmware runs causal, forward-only LSTMs",
+                ));
             }
             c if PASSIVE.contains(&c) => {}
             other => {
                 return Err(ExportError::unsupported(
                     label,
-                    format!("layer class {other} is not part of the firmware's network (LSTM → Dense)"),
+                    format!(
+                        "layer class {other} is not part of the firmware's network (LSTM → Dense)"
+                    ),
                 ));
             }
         }
     }
     let dense = match denses.as_slice() {
         [d] => d.clone(),
-        [] => return Err(ExportError::missing("Dense", "the Keras model has no Dense output layer")),
-        _ => return Err(ExportError::unsupported("Dense layers", "more than one Dense layer; the firmware has one")),
+        [] => {
+            return Err(ExportError::missing(
+                "Dense",
+                "the Keras model has no Dense output layer",
+            ));
+        }
+        _ => {
+            return Err(ExportError::unsupported(
+                "Dense layers",
+                "more than one Dense layer; the firmware has one",
+            ));
+        }
     };
     // Concatenation order: the inputs of a Concatenate, each traced back to an LSTM.
     let by_name: BTreeMap<&str, &LayerInfo> = layers.iter().map(|l| (l.name.as_str(), l)).collect();
@@ -175,7 +237,12 @@ fn check_config(layers: &[LayerInfo], sequential: bool, notes: &mut Vec<String>)
         }
         None
     };
-    let order = layers.iter().find(|l| l.class == "Concatenate").map(|c| c.inbound.iter().filter_map(|n| trace(n)).collect::<Vec<_>>());
+    let order = layers.iter().find(|l| l.class == "Concatenate").map(|c| {
+        c.inbound
+            .iter()
+            .filter_map(|n| trace(n))
+            .collect::<Vec<_>>()
+    });
     Ok((lstms, dense, order))
 }
 
@@ -186,13 +253,16 @@ struct H5Weights {
 }
 
 fn read_ds(path: &Path, f: &hdf5_reader::Hdf5File, name: &str) -> Result<(Vec<usize>, Vec<f32>)> {
-    let ds = f.dataset(name).map_err(|e| ExportError::missing(name, format!("not readable in {}: {e}", path.display())))?;
+    let ds = f.dataset(name).map_err(|e| {
+        ExportError::missing(name, format!("not readable in {}: {e}", path.display()))
+    })?;
     let shape: Vec<usize> = ds.shape().iter().map(|&d| d as usize).collect();
     let n: usize = shape.iter().product();
     let mut v = vec![0f32; n];
     if ds.read_into(&mut v).is_err() {
         let mut d = vec![0f64; n];
-        ds.read_into(&mut d).map_err(|e| ExportError::format(path, format!("dataset `{name}`: {e}")))?;
+        ds.read_into(&mut d)
+            .map_err(|e| ExportError::format(path, format!("dataset `{name}`: {e}")))?;
         v = d.into_iter().map(|x| x as f32).collect();
     }
     Ok((shape, v))
@@ -207,18 +277,35 @@ fn suffix_num(name: &str, base: &str) -> Option<u32> {
 }
 
 fn read_h5(path: &Path, bytes: Vec<u8>) -> Result<H5Weights> {
-    let f = hdf5_reader::Hdf5File::from_vec(bytes).map_err(|e| ExportError::format(path, format!("not a readable HDF5 file: {e}")))?;
-    let layers = f.group("layers").map_err(|e| ExportError::missing("layers", format!("no `layers` group (not a Keras 3 weights file): {e}")))?;
-    let (groups, _) = layers.member_names().map_err(|e| ExportError::format(path, e.to_string()))?;
+    let f = hdf5_reader::Hdf5File::from_vec(bytes)
+        .map_err(|e| ExportError::format(path, format!("not a readable HDF5 file: {e}")))?;
+    let layers = f.group("layers").map_err(|e| {
+        ExportError::missing(
+            "layers",
+            format!("no `layers` group (not a Keras 3 weights file): {e}"),
+        )
+    })?;
+    let (groups, _) = layers
+        .member_names()
+        .map_err(|e| ExportError::format(path, e.to_string()))?;
     if let Some(b) = groups.iter().find(|g| g.starts_with("bidirectional")) {
-        return Err(ExportError::unsupported(format!("layers/{b}"), "Bidirectional LSTM: the firmware runs causal, forward-only LSTMs"));
+        return Err(ExportError::unsupported(
+            format!("layers/{b}"),
+            "Bidirectional LSTM: the firmware runs causal, forward-only LSTMs",
+        ));
     }
     for other in ["gru", "simple_rnn", "conv_lstm"] {
         if let Some(g) = groups.iter().find(|g| suffix_num(g, other).is_some()) {
-            return Err(ExportError::unsupported(format!("layers/{g}"), "only LSTM cells are supported"));
+            return Err(ExportError::unsupported(
+                format!("layers/{g}"),
+                "only LSTM cells are supported",
+            ));
         }
     }
-    let mut lstm_groups: Vec<(u32, String)> = groups.iter().filter_map(|g| suffix_num(g, "lstm").map(|n| (n, g.clone()))).collect();
+    let mut lstm_groups: Vec<(u32, String)> = groups
+        .iter()
+        .filter_map(|g| suffix_num(g, "lstm").map(|n| (n, g.clone())))
+        .collect();
     lstm_groups.sort();
     let mut lstms = Vec::new();
     for (_, g) in lstm_groups {
@@ -231,10 +318,16 @@ fn read_h5(path: &Path, bytes: Vec<u8>) -> Result<H5Weights> {
         }
         lstms.push((format!("layers/{g}/cell/vars"), shapes, vals));
     }
-    let mut dense_groups: Vec<(u32, String)> = groups.iter().filter_map(|g| suffix_num(g, "dense").map(|n| (n, g.clone()))).collect();
+    let mut dense_groups: Vec<(u32, String)> = groups
+        .iter()
+        .filter_map(|g| suffix_num(g, "dense").map(|n| (n, g.clone())))
+        .collect();
     dense_groups.sort();
     if dense_groups.len() > 1 {
-        return Err(ExportError::unsupported("layers/dense_1", "more than one Dense layer; the firmware has one"));
+        return Err(ExportError::unsupported(
+            "layers/dense_1",
+            "more than one Dense layer; the firmware has one",
+        ));
     }
     let dense = match dense_groups.first() {
         Some((_, g)) => {
@@ -255,18 +348,29 @@ fn to_imported(
     format: Format,
 ) -> Result<Imported> {
     if w.lstms.is_empty() {
-        return Err(ExportError::missing("layers/lstm/cell/vars/0", "no LSTM weights in the Keras weights file"));
+        return Err(ExportError::missing(
+            "layers/lstm/cell/vars/0",
+            "no LSTM weights in the Keras weights file",
+        ));
     }
     let mut lstms = Vec::new();
     for (k, (base, shapes, vals)) in w.lstms.into_iter().enumerate() {
-        let names = [format!("{base}/0 (kernel)"), format!("{base}/1 (recurrent_kernel)"), format!("{base}/2 (bias)")];
+        let names = [
+            format!("{base}/0 (kernel)"),
+            format!("{base}/1 (recurrent_kernel)"),
+            format!("{base}/2 (bias)"),
+        ];
         let [ks, rs, bs] = &shapes;
         if rs.len() != 2 || rs[0] == 0 || rs[1] != 4 * rs[0] {
             return Err(ExportError::shape(&names[1], "[H, 4H]", dims(rs)));
         }
         let h = rs[0];
         if ks.len() != 2 || ks[1] != 4 * h {
-            return Err(ExportError::shape(&names[0], format!("[I, {}]", 4 * h), dims(ks)));
+            return Err(ExportError::shape(
+                &names[0],
+                format!("[I, {}]", 4 * h),
+                dims(ks),
+            ));
         }
         let i = ks[0];
         let b_ih = if bs.is_empty() || vals[2].is_empty() {
@@ -274,12 +378,24 @@ fn to_imported(
         } else if *bs == [4 * h] {
             vals[2].clone()
         } else {
-            return Err(ExportError::shape(&names[2], format!("[{}]", 4 * h), dims(bs)));
+            return Err(ExportError::shape(
+                &names[2],
+                format!("[{}]", 4 * h),
+                dims(bs),
+            ));
         };
-        let name = lstm_names.as_ref().and_then(|n| n.get(k).cloned()).unwrap_or_else(|| base.clone());
+        let name = lstm_names
+            .as_ref()
+            .and_then(|n| n.get(k).cloned())
+            .unwrap_or_else(|| base.clone());
         lstms.push(NamedLstm {
             name,
-            tensors: [names[0].clone(), names[1].clone(), names[2].clone(), format!("{base} (no b_hh in Keras)")],
+            tensors: [
+                names[0].clone(),
+                names[1].clone(),
+                names[2].clone(),
+                format!("{base} (no b_hh in Keras)"),
+            ],
             lstm: FloatLstm {
                 input: i,
                 hidden: h,
@@ -290,7 +406,12 @@ fn to_imported(
             },
         });
     }
-    let (base, [ws, bs], [wv, bv]) = w.dense.ok_or_else(|| ExportError::missing("layers/dense/vars/0", "no Dense weights in the Keras weights file"))?;
+    let (base, [ws, bs], [wv, bv]) = w.dense.ok_or_else(|| {
+        ExportError::missing(
+            "layers/dense/vars/0",
+            "no Dense weights in the Keras weights file",
+        )
+    })?;
     let (wn, bn) = (format!("{base}/0 (kernel)"), format!("{base}/1 (bias)"));
     if ws.len() != 2 {
         return Err(ExportError::shape(&wn, "[K, 2]", dims(&ws)));
@@ -313,19 +434,34 @@ fn to_imported(
         }
     }
     if !concat_order_known {
-        notes.push("concatenation order unknown (no config); dense columns taken as [force, bands]".into());
+        notes.push(
+            "concatenation order unknown (no config); dense columns taken as [force, bands]".into(),
+        );
     }
     Ok(Imported {
         format,
         lstms,
         concat_order_known,
-        dense: NamedDense { weight: wn, bias: bn, outputs: o, inputs: k, w: transpose(&wv, k, o), b: bv },
+        dense: NamedDense {
+            weight: wn,
+            bias: bn,
+            outputs: o,
+            inputs: k,
+            w: transpose(&wv, k, o),
+            b: bv,
+        },
         metadata: BTreeMap::new(),
         notes,
     })
 }
 
-fn with_config(path: &Path, config: &str, weights: Vec<u8>, format: Format, weights_path: &Path) -> Result<Imported> {
+fn with_config(
+    path: &Path,
+    config: &str,
+    weights: Vec<u8>,
+    format: Format,
+    weights_path: &Path,
+) -> Result<Imported> {
     let (layers, sequential) = parse_config(path, config)?;
     let mut notes = Vec::new();
     let (lstm_layers, _dense, concat) = check_config(&layers, sequential, &mut notes)?;
@@ -333,13 +469,21 @@ fn with_config(path: &Path, config: &str, weights: Vec<u8>, format: Format, weig
     if w.lstms.len() != lstm_layers.len() {
         return Err(ExportError::missing(
             "layers/lstm*/cell/vars",
-            format!("the config has {} LSTM layers, the weights file {}", lstm_layers.len(), w.lstms.len()),
+            format!(
+                "the config has {} LSTM layers, the weights file {}",
+                lstm_layers.len(),
+                w.lstms.len()
+            ),
         ));
     }
     for (l, (base, shapes, _)) in lstm_layers.iter().zip(&w.lstms) {
         let units = l.config.get("units").and_then(Value::as_u64).unwrap_or(0) as usize;
         if shapes[1].first() != Some(&units) {
-            return Err(ExportError::shape(format!("{base}/1 (recurrent_kernel of `{}`)", l.name), format!("[{units}, {}]", 4 * units), dims(&shapes[1])));
+            return Err(ExportError::shape(
+                format!("{base}/1 (recurrent_kernel of `{}`)", l.name),
+                format!("[{units}, {}]", 4 * units),
+                dims(&shapes[1]),
+            ));
         }
     }
     let names = lstm_layers.iter().map(|l| l.name.clone()).collect();
@@ -348,15 +492,24 @@ fn with_config(path: &Path, config: &str, weights: Vec<u8>, format: Format, weig
 
 /// Reads a `.keras` archive.
 pub fn import_keras(path: &Path, bytes: &[u8]) -> Result<Imported> {
-    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
-        .map_err(|e| ExportError::format(path, format!("not a readable .keras (zip) archive: {e}")))?;
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes)).map_err(|e| {
+        ExportError::format(path, format!("not a readable .keras (zip) archive: {e}"))
+    })?;
     let mut read = |name: &str| -> Result<Vec<u8>> {
-        let mut f = zip.by_name(name).map_err(|e| ExportError::format(path, format!("`{name}` missing from the .keras archive: {e}")))?;
+        let mut f = zip.by_name(name).map_err(|e| {
+            ExportError::format(
+                path,
+                format!("`{name}` missing from the .keras archive: {e}"),
+            )
+        })?;
         let mut v = Vec::new();
-        f.read_to_end(&mut v).map_err(|e| ExportError::format(path, format!("`{name}` in the archive is unreadable: {e}")))?;
+        f.read_to_end(&mut v).map_err(|e| {
+            ExportError::format(path, format!("`{name}` in the archive is unreadable: {e}"))
+        })?;
         Ok(v)
     };
-    let config = String::from_utf8(read("config.json")?).map_err(|_| ExportError::format(path, "config.json is not UTF-8"))?;
+    let config = String::from_utf8(read("config.json")?)
+        .map_err(|_| ExportError::format(path, "config.json is not UTF-8"))?;
     let weights = read("model.weights.h5")?;
     with_config(path, &config, weights, Format::Keras, path)
 }

@@ -118,7 +118,11 @@ pub struct Imported {
 }
 
 /// Reads a model file of the given (or detected) format.
-pub fn import(path: &Path, format: Option<Format>, keras_config: Option<&Path>) -> Result<Imported> {
+pub fn import(
+    path: &Path,
+    format: Option<Format>,
+    keras_config: Option<&Path>,
+) -> Result<Imported> {
     let bytes = std::fs::read(path).map_err(|e| ExportError::io(path, e))?;
     let format = match format.or_else(|| Format::detect(path, &bytes)) {
         Some(f) => f,
@@ -140,7 +144,10 @@ pub fn import(path: &Path, format: Option<Format>, keras_config: Option<&Path>) 
 fn shape_str(dims: &[usize]) -> String {
     format!(
         "[{}]",
-        dims.iter().map(|d| d.to_string()).collect::<Vec<_>>().join(", ")
+        dims.iter()
+            .map(|d| d.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
     )
 }
 
@@ -163,7 +170,10 @@ fn dual_roles(lstms: &[NamedLstm], force_in: usize, band_in: usize) -> Result<(u
         }
     }
     let fits = |i: usize, n: usize| lstms[i].lstm.input == n;
-    match (fits(0, force_in) && fits(1, band_in), fits(1, force_in) && fits(0, band_in)) {
+    match (
+        fits(0, force_in) && fits(1, band_in),
+        fits(1, force_in) && fits(0, band_in),
+    ) {
         (true, false) => Ok((0, 1)),
         (false, true) => Ok((1, 0)),
         (true, true) => Ok((0, 1)),
@@ -196,7 +206,12 @@ pub fn assemble(imp: &Imported, res: &Resolved) -> Result<(FloatModel, bool)> {
     if imp.lstms.len() < need {
         return Err(ExportError::missing(
             "second LSTM",
-            format!("variant {} needs {need} LSTMs, the file has {} ({})", variant.name(), imp.lstms.len(), names.join(", ")),
+            format!(
+                "variant {} needs {need} LSTMs, the file has {} ({})",
+                variant.name(),
+                imp.lstms.len(),
+                names.join(", ")
+            ),
         ));
     }
     for l in &imp.lstms {
@@ -209,7 +224,11 @@ pub fn assemble(imp: &Imported, res: &Resolved) -> Result<(FloatModel, bool)> {
                 ),
             });
         }
-        for (t, v) in l.tensors.iter().zip([&l.lstm.w_ih, &l.lstm.w_hh, &l.lstm.b_ih, &l.lstm.b_hh]) {
+        for (t, v) in l
+            .tensors
+            .iter()
+            .zip([&l.lstm.w_ih, &l.lstm.w_hh, &l.lstm.b_ih, &l.lstm.b_hh])
+        {
             check_finite(t, v)?;
         }
     }
@@ -253,12 +272,18 @@ pub fn assemble(imp: &Imported, res: &Resolved) -> Result<(FloatModel, bool)> {
     if d.inputs != k_total || !(d.outputs == 1 || d.outputs == 2) {
         return Err(ExportError::shape(
             d.weight.clone(),
-            format!("[2, {k_total}] (2 logits over the {k_total} concatenated hidden states; [1, {k_total}] for a single sigmoid logit)"),
+            format!(
+                "[2, {k_total}] (2 logits over the {k_total} concatenated hidden states; [1, {k_total}] for a single sigmoid logit)"
+            ),
             format!("[{}, {}]", d.outputs, d.inputs),
         ));
     }
     // Columns of each imported LSTM in the file's concatenation order.
-    let file_order: Vec<usize> = if imp.concat_order_known { (0..imp.lstms.len()).collect() } else { order.clone() };
+    let file_order: Vec<usize> = if imp.concat_order_known {
+        (0..imp.lstms.len()).collect()
+    } else {
+        order.clone()
+    };
     let mut col_start = vec![0usize; imp.lstms.len()];
     let mut off = 0;
     for &i in &file_order {
@@ -286,27 +311,61 @@ pub fn assemble(imp: &Imported, res: &Resolved) -> Result<(FloatModel, bool)> {
                 if v.len() != nf {
                     return Err(ExportError::settings(
                         key,
-                        format!("has {} entries, variant {}{} has {nf} features [force, d(t), bands]", v.len(), variant.name(), if config.force_diff { " with d(t)" } else { "" }),
+                        format!(
+                            "has {} entries, variant {}{} has {nf} features [force, d(t), bands]",
+                            v.len(),
+                            variant.name(),
+                            if config.force_diff { " with d(t)" } else { "" }
+                        ),
                     ));
                 }
             }
             if let Some(i) = s.iter().position(|&x| x <= 0.0) {
-                return Err(ExportError::settings("norm_std", format!("entry {i} must be > 0")));
+                return Err(ExportError::settings(
+                    "norm_std",
+                    format!("entry {i} must be > 0"),
+                ));
             }
             (m.clone(), s.clone(), true)
         }
         (None, None) => (vec![0.0; nf], vec![1.0; nf], false),
-        (Some(_), None) => return Err(ExportError::settings("norm_std", "norm_mean is given but norm_std is not")),
-        (None, Some(_)) => return Err(ExportError::settings("norm_mean", "norm_std is given but norm_mean is not")),
+        (Some(_), None) => {
+            return Err(ExportError::settings(
+                "norm_std",
+                "norm_mean is given but norm_std is not",
+            ));
+        }
+        (None, Some(_)) => {
+            return Err(ExportError::settings(
+                "norm_mean",
+                "norm_std is given but norm_mean is not",
+            ));
+        }
     };
 
-    let dense = FloatDense { inputs: k_total, w, b: b.to_vec() };
+    let dense = FloatDense {
+        inputs: k_total,
+        w,
+        b: b.to_vec(),
+    };
     config.model_id = res.model_id.unwrap_or_else(|| weights_id(&lstms, &dense));
-    let model = FloatModel { config, norm_mean, norm_std, lstms, dense };
+    let model = FloatModel {
+        config,
+        norm_mean,
+        norm_std,
+        lstms,
+        dense,
+    };
     model.validate().map_err(|e| match e {
-        FloatModelError::Shape { tensor, expected, found } => {
-            ExportError::shape(tensor, format!("{expected} elements"), format!("{found} elements"))
-        }
+        FloatModelError::Shape {
+            tensor,
+            expected,
+            found,
+        } => ExportError::shape(
+            tensor,
+            format!("{expected} elements"),
+            format!("{found} elements"),
+        ),
         FloatModelError::NotFinite { tensor, index } => ExportError::NotFinite { tensor, index },
         other => ExportError::unsupported("model", other.to_string()),
     })?;

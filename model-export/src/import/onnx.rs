@@ -26,43 +26,123 @@ struct Const {
     data: Vec<f32>,
 }
 
-fn tensor_values(path: &Path, t: &TensorProto) -> Result<Const> {
-    if t.data_location == 1 || !t.external_data.is_empty() {
+/// Reads the bytes of a tensor stored outside the .onnx (`data_location = EXTERNAL`, as
+/// `torch.onnx.export` writes by default): `location` relative to the model's folder (no
+/// absolute paths, no `..`), `offset`, `length`.
+fn external_bytes(path: &Path, t: &TensorProto) -> Result<Vec<u8>> {
+    let get = |k: &str| {
+        t.external_data
+            .iter()
+            .find(|e| e.key == k)
+            .map(|e| e.value.clone())
+    };
+    let loc = get("location").ok_or_else(|| {
+        ExportError::format(
+            path,
+            format!("tensor `{}`: external data without a location", t.name),
+        )
+    })?;
+    let rel = Path::new(&loc);
+    if rel.is_absolute()
+        || rel
+            .components()
+            .any(|c| matches!(c, std::path::Component::ParentDir))
+    {
         return Err(ExportError::format(
             path,
-            format!("tensor `{}` is stored in an external file; re-export with the weights inside the .onnx", t.name),
+            format!(
+                "tensor `{}`: external data location `{loc}` leaves the model's folder",
+                t.name
+            ),
         ));
     }
+    let file = path.parent().unwrap_or(Path::new(".")).join(rel);
+    let data = std::fs::read(&file).map_err(|e| ExportError::io(&file, e))?;
+    let parse = |k: &str| {
+        get(k)
+            .map(|v| {
+                v.parse::<usize>().map_err(|_| {
+                    ExportError::format(
+                        path,
+                        format!("tensor `{}`: bad external {k} `{v}`", t.name),
+                    )
+                })
+            })
+            .transpose()
+    };
+    let offset = parse("offset")?.unwrap_or(0);
+    let length = parse("length")?.unwrap_or(data.len().saturating_sub(offset));
+    data.get(offset..offset.saturating_add(length)).map(<[u8]>::to_vec).ok_or_else(|| {
+        ExportError::format(&file, format!("tensor `{}`: bytes {offset}..{} are past the end of the file ({} bytes; truncated?)", t.name, offset + length, data.len()))
+    })
+}
+
+fn tensor_values(path: &Path, t: &TensorProto) -> Result<Const> {
+    let external;
+    let raw: &Vec<u8> = if t.data_location == 1 || !t.external_data.is_empty() {
+        external = external_bytes(path, t)?;
+        &external
+    } else {
+        &t.raw_data
+    };
     let dims: Vec<usize> = t.dims.iter().map(|&d| d.max(0) as usize).collect();
     let n: usize = dims.iter().product();
-    let raw = &t.raw_data;
     let data: Vec<f32> = match t.data_type {
-        data_type::FLOAT if !raw.is_empty() => raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+        data_type::FLOAT if !raw.is_empty() => raw
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
         data_type::FLOAT => t.float_data.clone(),
-        data_type::DOUBLE if !raw.is_empty() => raw.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f32).collect(),
+        data_type::DOUBLE if !raw.is_empty() => raw
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f32)
+            .collect(),
         data_type::DOUBLE => t.double_data.iter().map(|&x| x as f32).collect(),
         data_type::FLOAT16 | data_type::BFLOAT16 => {
             let bits: Vec<u16> = if !raw.is_empty() {
-                raw.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect()
+                raw.chunks_exact(2)
+                    .map(|c| u16::from_le_bytes([c[0], c[1]]))
+                    .collect()
             } else {
                 t.int32_data.iter().map(|&x| x as u16).collect()
             };
             bits.into_iter()
-                .map(|b| if t.data_type == data_type::FLOAT16 { super::torch::f16_to_f32(b) } else { f32::from_bits((b as u32) << 16) })
+                .map(|b| {
+                    if t.data_type == data_type::FLOAT16 {
+                        super::torch::f16_to_f32(b)
+                    } else {
+                        f32::from_bits((b as u32) << 16)
+                    }
+                })
                 .collect()
         }
-        data_type::INT64 if !raw.is_empty() => raw.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f32).collect(),
+        data_type::INT64 if !raw.is_empty() => raw
+            .chunks_exact(8)
+            .map(|c| i64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f32)
+            .collect(),
         data_type::INT64 => t.int64_data.iter().map(|&x| x as f32).collect(),
-        data_type::INT32 if !raw.is_empty() => raw.chunks_exact(4).map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f32).collect(),
+        data_type::INT32 if !raw.is_empty() => raw
+            .chunks_exact(4)
+            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f32)
+            .collect(),
         data_type::INT32 => t.int32_data.iter().map(|&x| x as f32).collect(),
         other => {
-            return Err(ExportError::shape(&t.name, "a float tensor", format!("ONNX data type {other}")));
+            return Err(ExportError::shape(
+                &t.name,
+                "a float tensor",
+                format!("ONNX data type {other}"),
+            ));
         }
     };
     if data.len() != n {
         return Err(ExportError::format(
             path,
-            format!("tensor `{}` declares {} elements but holds {}", t.name, n, data.len()),
+            format!(
+                "tensor `{}` declares {} elements but holds {}",
+                t.name,
+                n,
+                data.len()
+            ),
         ));
     }
     Ok(Const { dims, data })
@@ -74,7 +154,11 @@ fn attr<'a>(n: &'a NodeProto, name: &str) -> Option<&'a super::onnx_proto::Attri
 
 fn node_label(n: &NodeProto) -> String {
     if n.name.is_empty() {
-        format!("{} node → {}", n.op_type, n.output.first().cloned().unwrap_or_default())
+        format!(
+            "{} node → {}",
+            n.op_type,
+            n.output.first().cloned().unwrap_or_default()
+        )
     } else {
         format!("{} node `{}`", n.op_type, n.name)
     }
@@ -82,8 +166,22 @@ fn node_label(n: &NodeProto) -> String {
 
 /// Operators allowed on the data path between the graph input and the logits.
 const DATA_OPS: &[&str] = &[
-    "LSTM", "Gemm", "MatMul", "Add", "Concat", "Squeeze", "Unsqueeze", "Transpose", "Reshape", "Slice",
-    "Gather", "Identity", "Softmax", "Split", "Flatten", "Cast",
+    "LSTM",
+    "Gemm",
+    "MatMul",
+    "Add",
+    "Concat",
+    "Squeeze",
+    "Unsqueeze",
+    "Transpose",
+    "Reshape",
+    "Slice",
+    "Gather",
+    "Identity",
+    "Softmax",
+    "Split",
+    "Flatten",
+    "Cast",
 ];
 
 /// Reads an ONNX model.
@@ -95,7 +193,10 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         .as_ref()
         .ok_or_else(|| ExportError::format(path, "ONNX model without a graph"))?;
     if graph.node.is_empty() {
-        return Err(ExportError::format(path, "ONNX graph has no nodes (truncated?)"));
+        return Err(ExportError::format(
+            path,
+            "ONNX graph has no nodes (truncated?)",
+        ));
     }
     // Constants: initializers and Constant nodes.
     let mut consts: BTreeMap<String, Const> = BTreeMap::new();
@@ -103,7 +204,10 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         consts.insert(t.name.clone(), tensor_values(path, t)?);
     }
     for n in graph.node.iter().filter(|n| n.op_type == "Constant") {
-        if let (Some(out), Some(t)) = (n.output.first(), attr(n, "value").and_then(|a| a.t.as_ref())) {
+        if let (Some(out), Some(t)) = (
+            n.output.first(),
+            attr(n, "value").and_then(|a| a.t.as_ref()),
+        ) {
             consts.insert(out.clone(), tensor_values(path, t)?);
         }
     }
@@ -171,9 +275,14 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         out
     };
 
-    let lstm_nodes: Vec<usize> = (0..graph.node.len()).filter(|&i| graph.node[i].op_type == "LSTM").collect();
+    let lstm_nodes: Vec<usize> = (0..graph.node.len())
+        .filter(|&i| graph.node[i].op_type == "LSTM")
+        .collect();
     if lstm_nodes.is_empty() {
-        return Err(ExportError::missing("LSTM", "the ONNX graph has no LSTM node"));
+        return Err(ExportError::missing(
+            "LSTM",
+            "the ONNX graph has no LSTM node",
+        ));
     }
     let mut lstms = Vec::new();
     for &li in &lstm_nodes {
@@ -197,15 +306,24 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
     let dense_nodes: Vec<usize> = (0..graph.node.len())
         .filter(|&i| {
             let n = &graph.node[i];
-            (n.op_type == "Gemm" || n.op_type == "MatMul") && n.input.get(1).is_some_and(|w| consts.contains_key(w))
+            (n.op_type == "Gemm" || n.op_type == "MatMul")
+                && n.input.get(1).is_some_and(|w| consts.contains_key(w))
         })
         .collect();
     let di = match dense_nodes.as_slice() {
         [one] => *one,
-        [] => return Err(ExportError::missing("Gemm/MatMul", "no Gemm or MatMul with a constant weight after the LSTM (nn.Linear to 2 logits)")),
+        [] => {
+            return Err(ExportError::missing(
+                "Gemm/MatMul",
+                "no Gemm or MatMul with a constant weight after the LSTM (nn.Linear to 2 logits)",
+            ));
+        }
         many => {
             return Err(ExportError::unsupported(
-                many.iter().map(|&i| node_label(&graph.node[i])).collect::<Vec<_>>().join(", "),
+                many.iter()
+                    .map(|&i| node_label(&graph.node[i]))
+                    .collect::<Vec<_>>()
+                    .join(", "),
                 "more than one dense layer; the firmware has one dense layer to the 2 logits",
             ));
         }
@@ -214,7 +332,11 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
     let wname = dn.input[1].clone();
     let wc = &consts[&wname];
     if wc.dims.len() != 2 {
-        return Err(ExportError::shape(&wname, "[K, 2] (MatMul) or [2, K] (Gemm, transB=1)", dims(&wc.dims)));
+        return Err(ExportError::shape(
+            &wname,
+            "[K, 2] (MatMul) or [2, K] (Gemm, transB=1)",
+            dims(&wc.dims),
+        ));
     }
     let (mut w, outputs, inputs);
     let mut b: Vec<f32>;
@@ -223,7 +345,10 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         let alpha = attr(dn, "alpha").map_or(1.0, |a| a.f);
         let beta = attr(dn, "beta").map_or(1.0, |a| a.f);
         if attr(dn, "transA").is_some_and(|a| a.i != 0) {
-            return Err(ExportError::unsupported(node_label(dn), "Gemm with transA=1"));
+            return Err(ExportError::unsupported(
+                node_label(dn),
+                "Gemm with transA=1",
+            ));
         }
         if attr(dn, "transB").is_some_and(|a| a.i != 0) {
             (outputs, inputs) = (wc.dims[0], wc.dims[1]);
@@ -243,7 +368,10 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         w = transpose(&wc.data, inputs, outputs);
         // The Add that takes the MatMul's output and a constant.
         let out = &dn.output[0];
-        let add = graph.node.iter().find(|n| n.op_type == "Add" && n.input.iter().any(|x| x == out));
+        let add = graph
+            .node
+            .iter()
+            .find(|n| n.op_type == "Add" && n.input.iter().any(|x| x == out));
         match add.and_then(|a| a.input.iter().find(|x| consts.contains_key(*x))) {
             Some(name) => {
                 bname = name.clone();
@@ -259,7 +387,11 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         b = vec![b[0]; outputs];
     }
     if b.len() != outputs {
-        return Err(ExportError::shape(&bname, format!("[{outputs}]"), format!("[{}]", b.len())));
+        return Err(ExportError::shape(
+            &bname,
+            format!("[{outputs}]"),
+            format!("[{}]", b.len()),
+        ));
     }
 
     // Concatenation order of the hidden states.
@@ -270,7 +402,9 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         let mut v = src.clone();
         let mut order = None;
         for _ in 0..64 {
-            let Some(&p) = producer.get(v.as_str()) else { break };
+            let Some(&p) = producer.get(v.as_str()) else {
+                break;
+            };
             let n = &graph.node[p];
             if n.op_type == "Concat" {
                 let mut o = Vec::new();
@@ -298,20 +432,34 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
                 lstms = o.iter().map(|&k| lstms[k].clone()).collect();
                 concat_order_known = true;
             }
-            None => notes.push("no Concat of the two LSTM outputs found; dense columns taken as [force, bands]".into()),
+            None => notes.push(
+                "no Concat of the two LSTM outputs found; dense columns taken as [force, bands]"
+                    .into(),
+            ),
         }
     }
     notes.push(format!(
         "producer {} {}, opset {}",
         model.producer_name,
         model.producer_version,
-        model.opset_import.iter().find(|o| o.domain.is_empty()).map_or(0, |o| o.version)
+        model
+            .opset_import
+            .iter()
+            .find(|o| o.domain.is_empty())
+            .map_or(0, |o| o.version)
     ));
     Ok(Imported {
         format: Format::Onnx,
         lstms,
         concat_order_known,
-        dense: NamedDense { weight: wname, bias: bname, outputs, inputs, w, b },
+        dense: NamedDense {
+            weight: wname,
+            bias: bname,
+            outputs,
+            inputs,
+            w,
+            b,
+        },
         metadata: BTreeMap::new(),
         notes,
     })
@@ -326,15 +474,18 @@ fn is_zero_state(
     if let Some(c) = consts.get(name) {
         return c.data.iter().all(|&x| x == 0.0);
     }
-    let Some(&p) = producer.get(name) else { return false };
+    let Some(&p) = producer.get(name) else {
+        return false;
+    };
     let n = &graph.node[p];
     match n.op_type.as_str() {
-        "ConstantOfShape" => attr(n, "value")
-            .and_then(|a| a.t.as_ref())
-            .is_none_or(|t| t.raw_data.iter().all(|&b| b == 0) && t.float_data.iter().all(|&x| x == 0.0)),
-        "Expand" | "Tile" | "Reshape" | "Unsqueeze" | "Identity" | "Cast" => {
-            n.input.first().is_some_and(|x| is_zero_state(x, consts, producer, graph))
-        }
+        "ConstantOfShape" => attr(n, "value").and_then(|a| a.t.as_ref()).is_none_or(|t| {
+            t.raw_data.iter().all(|&b| b == 0) && t.float_data.iter().all(|&x| x == 0.0)
+        }),
+        "Expand" | "Tile" | "Reshape" | "Unsqueeze" | "Identity" | "Cast" => n
+            .input
+            .first()
+            .is_some_and(|x| is_zero_state(x, consts, producer, graph)),
         _ => false,
     }
 }
@@ -346,24 +497,38 @@ fn read_lstm(
     producer: &BTreeMap<&str, usize>,
     graph: &super::onnx_proto::GraphProto,
 ) -> Result<NamedLstm> {
-    let dir = attr(n, "direction").map(|a| String::from_utf8_lossy(&a.s).to_string()).unwrap_or_else(|| "forward".into());
+    let dir = attr(n, "direction")
+        .map(|a| String::from_utf8_lossy(&a.s).to_string())
+        .unwrap_or_else(|| "forward".into());
     if dir != "forward" {
         return Err(ExportError::unsupported(
             label,
-            format!("direction={dir}: the firmware runs causal, forward-only LSTMs (bidirectional/reverse cannot run on a live stream)"),
+            format!(
+                "direction={dir}: the firmware runs causal, forward-only LSTMs (bidirectional/reverse cannot run on a live stream)"
+            ),
         ));
     }
     if let Some(a) = attr(n, "clip") {
         return Err(ExportError::unsupported(
             format!("{label} attribute clip"),
-            format!("cell clipping (clip={}) is not implemented by the firmware's cell; train without it", a.f),
+            format!(
+                "cell clipping (clip={}) is not implemented by the firmware's cell; train without it",
+                a.f
+            ),
         ));
     }
     if attr(n, "input_forget").is_some_and(|a| a.i != 0) {
-        return Err(ExportError::unsupported(format!("{label} attribute input_forget"), "coupled input-forget gate (input_forget=1) is not supported"));
+        return Err(ExportError::unsupported(
+            format!("{label} attribute input_forget"),
+            "coupled input-forget gate (input_forget=1) is not supported",
+        ));
     }
     if let Some(a) = attr(n, "activations") {
-        let acts: Vec<String> = a.strings.iter().map(|s| String::from_utf8_lossy(s).to_ascii_lowercase()).collect();
+        let acts: Vec<String> = a
+            .strings
+            .iter()
+            .map(|s| String::from_utf8_lossy(s).to_ascii_lowercase())
+            .collect();
         if acts != ["sigmoid", "tanh", "tanh"] {
             let hint = if acts.iter().any(|s| s == "hardsigmoid") {
                 " (HardSigmoid is not the logistic σ the firmware's gate table implements; retrain with sigmoid — converting would change the model's outputs)"
@@ -378,9 +543,17 @@ fn read_lstm(
     }
     let input = |k: usize| n.input.get(k).filter(|s| !s.is_empty());
     let get = |k: usize, what: &str| -> Result<(&String, &Const)> {
-        let name = input(k).ok_or_else(|| ExportError::missing(format!("{label} input {what}"), "required LSTM input is absent"))?;
+        let name = input(k).ok_or_else(|| {
+            ExportError::missing(
+                format!("{label} input {what}"),
+                "required LSTM input is absent",
+            )
+        })?;
         let c = consts.get(name).ok_or_else(|| {
-            ExportError::unsupported(name, format!("LSTM {what} is computed by the graph, not a constant initializer"))
+            ExportError::unsupported(
+                name,
+                format!("LSTM {what} is computed by the graph, not a constant initializer"),
+            )
         })?;
         Ok((name, c))
     };
@@ -390,30 +563,50 @@ fn read_lstm(
         return Err(ExportError::shape(wn, "[1, 4H, I]", dims(&w.dims)));
     }
     if w.dims[0] != 1 {
-        return Err(ExportError::unsupported(wn, format!("{} directions (bidirectional); the firmware runs forward-only LSTMs", w.dims[0])));
+        return Err(ExportError::unsupported(
+            wn,
+            format!(
+                "{} directions (bidirectional); the firmware runs forward-only LSTMs",
+                w.dims[0]
+            ),
+        ));
     }
     let h = w.dims[1] / 4;
     let i = w.dims[2];
     if let Some(hs) = attr(n, "hidden_size")
         && hs.i as usize != h
     {
-        return Err(ExportError::shape(wn, format!("[1, {}, I] (hidden_size={})", 4 * hs.i, hs.i), dims(&w.dims)));
+        return Err(ExportError::shape(
+            wn,
+            format!("[1, {}, I] (hidden_size={})", 4 * hs.i, hs.i),
+            dims(&w.dims),
+        ));
     }
     if r.dims != [1, 4 * h, h] {
-        return Err(ExportError::shape(rn, format!("[1, {}, {h}]", 4 * h), dims(&r.dims)));
+        return Err(ExportError::shape(
+            rn,
+            format!("[1, {}, {h}]", 4 * h),
+            dims(&r.dims),
+        ));
     }
     let (bn, bias) = match input(3) {
         Some(_) => {
             let (bn, b) = get(3, "B")?;
             if b.dims != [1, 8 * h] {
-                return Err(ExportError::shape(bn, format!("[1, {}]", 8 * h), dims(&b.dims)));
+                return Err(ExportError::shape(
+                    bn,
+                    format!("[1, {}]", 8 * h),
+                    dims(&b.dims),
+                ));
             }
             (bn.clone(), b.data.clone())
         }
         None => ("(none)".to_string(), vec![0.0; 8 * h]),
     };
     if let Some(pn) = input(7) {
-        let nonzero = consts.get(pn).is_none_or(|c| c.data.iter().any(|&x| x != 0.0));
+        let nonzero = consts
+            .get(pn)
+            .is_none_or(|c| c.data.iter().any(|&x| x != 0.0));
         if nonzero {
             return Err(ExportError::unsupported(
                 pn,
@@ -427,7 +620,9 @@ fn read_lstm(
         {
             return Err(ExportError::unsupported(
                 s,
-                format!("{what} is not a zero constant; the firmware starts every grasp from a zero state"),
+                format!(
+                    "{what} is not a zero constant; the firmware starts every grasp from a zero state"
+                ),
             ));
         }
     }
@@ -438,8 +633,24 @@ fn read_lstm(
     let b_ih = reorder_gates(&bias[..4 * h], h, 1, order);
     let b_hh = reorder_gates(&bias[4 * h..], h, 1, order);
     Ok(NamedLstm {
-        name: if n.name.is_empty() { wn.clone() } else { n.name.clone() },
-        tensors: [wn.clone(), rn.clone(), format!("{bn}[0..4H]"), format!("{bn}[4H..8H]")],
-        lstm: FloatLstm { input: i, hidden: h, w_ih, w_hh, b_ih, b_hh },
+        name: if n.name.is_empty() {
+            wn.clone()
+        } else {
+            n.name.clone()
+        },
+        tensors: [
+            wn.clone(),
+            rn.clone(),
+            format!("{bn}[0..4H]"),
+            format!("{bn}[4H..8H]"),
+        ],
+        lstm: FloatLstm {
+            input: i,
+            hidden: h,
+            w_ih,
+            w_hh,
+            b_ih,
+            b_hh,
+        },
     })
 }

@@ -25,7 +25,10 @@ struct T {
 
 fn to_f32(name: &str, dtype: Dtype, raw: &[u8]) -> Result<Vec<f32>> {
     Ok(match dtype {
-        Dtype::F32 => raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+        Dtype::F32 => raw
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
         Dtype::F64 => raw
             .chunks_exact(8)
             .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f32)
@@ -34,7 +37,10 @@ fn to_f32(name: &str, dtype: Dtype, raw: &[u8]) -> Result<Vec<f32>> {
             .chunks_exact(2)
             .map(|c| f32::from_bits((u16::from_le_bytes([c[0], c[1]]) as u32) << 16))
             .collect(),
-        Dtype::F16 => raw.chunks_exact(2).map(|c| f16_to_f32(u16::from_le_bytes([c[0], c[1]]))).collect(),
+        Dtype::F16 => raw
+            .chunks_exact(2)
+            .map(|c| f16_to_f32(u16::from_le_bytes([c[0], c[1]])))
+            .collect(),
         other => {
             return Err(ExportError::shape(
                 name,
@@ -64,23 +70,41 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         .map_err(|e| ExportError::format(path, format!("not a valid safetensors file: {e}")))?;
     let (_, meta) = SafeTensors::read_metadata(bytes)
         .map_err(|e| ExportError::format(path, format!("not a valid safetensors file: {e}")))?;
-    let metadata: BTreeMap<String, String> =
-        meta.metadata().clone().unwrap_or_default().into_iter().collect();
+    let metadata: BTreeMap<String, String> = meta
+        .metadata()
+        .clone()
+        .unwrap_or_default()
+        .into_iter()
+        .collect();
 
     let mut tensors: BTreeMap<String, T> = BTreeMap::new();
     for (name, view) in st.tensors() {
         let data = to_f32(&name, view.dtype(), view.data())?;
-        tensors.insert(name, T { shape: view.shape().to_vec(), data });
+        tensors.insert(
+            name,
+            T {
+                shape: view.shape().to_vec(),
+                data,
+            },
+        );
     }
     let names: Vec<String> = tensors.keys().cloned().collect();
     let (lstms, used) = find_lstms(&names, &tensors)?;
-    let (dense, dense_used) = find_dense(&tensors, &used, lstms.iter().map(|l| l.lstm.hidden).sum())?;
+    let (dense, dense_used) =
+        find_dense(&tensors, &used, lstms.iter().map(|l| l.lstm.hidden).sum())?;
     let mut notes = Vec::new();
-    let ignored: Vec<&String> = names.iter().filter(|n| !used.contains(*n) && !dense_used.contains(*n)).collect();
+    let ignored: Vec<&String> = names
+        .iter()
+        .filter(|n| !used.contains(*n) && !dense_used.contains(*n))
+        .collect();
     if !ignored.is_empty() {
         notes.push(format!(
             "ignored tensors: {}",
-            ignored.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
+            ignored
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
         ));
     }
     Ok(Imported {
@@ -94,7 +118,10 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
 }
 
 /// Finds the LSTMs of a PyTorch state_dict (shared with other name-based importers).
-fn find_lstms(names: &[String], t: &BTreeMap<String, T>) -> Result<(Vec<NamedLstm>, BTreeSet<String>)> {
+fn find_lstms(
+    names: &[String],
+    t: &BTreeMap<String, T>,
+) -> Result<(Vec<NamedLstm>, BTreeSet<String>)> {
     for n in names {
         if n.contains("_reverse") && (n.contains("weight_") || n.contains("bias_")) {
             return Err(ExportError::unsupported(
@@ -114,7 +141,9 @@ fn find_lstms(names: &[String], t: &BTreeMap<String, T>) -> Result<(Vec<NamedLst
                 if layer != "0" && layer.parse::<u32>().is_ok() {
                     return Err(ExportError::unsupported(
                         n,
-                        format!("stacked LSTM (layer {layer}): the firmware runs one LSTM layer per path; train with num_layers=1"),
+                        format!(
+                            "stacked LSTM (layer {layer}): the firmware runs one LSTM layer per path; train with num_layers=1"
+                        ),
                     ));
                 }
             }
@@ -130,7 +159,10 @@ fn find_lstms(names: &[String], t: &BTreeMap<String, T>) -> Result<(Vec<NamedLst
         let wih = &t[n];
         let whh_name = tn("weight_hh_l0");
         let whh = t.get(&whh_name).ok_or_else(|| {
-            ExportError::missing(&whh_name, format!("`{n}` is present but its recurrent weights are not"))
+            ExportError::missing(
+                &whh_name,
+                format!("`{n}` is present but its recurrent weights are not"),
+            )
         })?;
         if wih.shape.len() != 2 || wih.shape[0] == 0 || wih.shape[0] % 4 != 0 {
             return Err(ExportError::shape(n, "[4H, I]", dims(&wih.shape)));
@@ -138,14 +170,22 @@ fn find_lstms(names: &[String], t: &BTreeMap<String, T>) -> Result<(Vec<NamedLst
         let h = wih.shape[0] / 4;
         let i = wih.shape[1];
         if whh.shape != [4 * h, h] {
-            return Err(ExportError::shape(&whh_name, format!("[{}, {h}]", 4 * h), dims(&whh.shape)));
+            return Err(ExportError::shape(
+                &whh_name,
+                format!("[{}, {h}]", 4 * h),
+                dims(&whh.shape),
+            ));
         }
         let (bih_name, bhh_name) = (tn("bias_ih_l0"), tn("bias_hh_l0"));
         let (b_ih, b_hh) = match (t.get(&bih_name), t.get(&bhh_name)) {
             (Some(a), Some(b)) => {
                 for (name, v) in [(&bih_name, a), (&bhh_name, b)] {
                     if v.shape != [4 * h] {
-                        return Err(ExportError::shape(name, format!("[{}]", 4 * h), dims(&v.shape)));
+                        return Err(ExportError::shape(
+                            name,
+                            format!("[{}]", 4 * h),
+                            dims(&v.shape),
+                        ));
                     }
                 }
                 used.insert(bih_name.clone());
@@ -153,8 +193,18 @@ fn find_lstms(names: &[String], t: &BTreeMap<String, T>) -> Result<(Vec<NamedLst
                 (a.data.clone(), b.data.clone())
             }
             (None, None) => (vec![0.0; 4 * h], vec![0.0; 4 * h]),
-            (Some(_), None) => return Err(ExportError::missing(&bhh_name, format!("`{bih_name}` is present but not `{bhh_name}`"))),
-            (None, Some(_)) => return Err(ExportError::missing(&bih_name, format!("`{bhh_name}` is present but not `{bih_name}`"))),
+            (Some(_), None) => {
+                return Err(ExportError::missing(
+                    &bhh_name,
+                    format!("`{bih_name}` is present but not `{bhh_name}`"),
+                ));
+            }
+            (None, Some(_)) => {
+                return Err(ExportError::missing(
+                    &bih_name,
+                    format!("`{bhh_name}` is present but not `{bih_name}`"),
+                ));
+            }
         };
         used.insert(n.clone());
         used.insert(whh_name.clone());
@@ -184,7 +234,12 @@ fn find_lstms(names: &[String], t: &BTreeMap<String, T>) -> Result<(Vec<NamedLst
 }
 
 fn preview(names: &[String]) -> String {
-    let mut s = names.iter().take(12).cloned().collect::<Vec<_>>().join(", ");
+    let mut s = names
+        .iter()
+        .take(12)
+        .cloned()
+        .collect::<Vec<_>>()
+        .join(", ");
     if names.len() > 12 {
         s.push_str(&format!(", … ({} tensors)", names.len()));
     }
@@ -201,7 +256,9 @@ fn find_dense(
 ) -> Result<(NamedDense, BTreeSet<String>)> {
     let pick = |w: &str, b: &str| -> Result<(NamedDense, BTreeSet<String>)> {
         let wt = &t[w];
-        let bt = t.get(b).ok_or_else(|| ExportError::missing(b, format!("`{w}` is present but its bias is not")))?;
+        let bt = t.get(b).ok_or_else(|| {
+            ExportError::missing(b, format!("`{w}` is present but its bias is not"))
+        })?;
         if wt.shape.len() != 2 {
             return Err(ExportError::shape(w, format!("[2, {k}]"), dims(&wt.shape)));
         }
@@ -210,7 +267,14 @@ fn find_dense(
             return Err(ExportError::shape(b, format!("[{o}]"), dims(&bt.shape)));
         }
         Ok((
-            NamedDense { weight: w.into(), bias: b.into(), outputs: o, inputs: i, w: wt.data.clone(), b: bt.data.clone() },
+            NamedDense {
+                weight: w.into(),
+                bias: b.into(),
+                outputs: o,
+                inputs: i,
+                w: wt.data.clone(),
+                b: bt.data.clone(),
+            },
             [w.to_string(), b.to_string()].into_iter().collect(),
         ))
     };
@@ -229,11 +293,20 @@ fn find_dense(
         [one] => pick(one, &bias_of(one)),
         [] => Err(ExportError::missing(
             "dense.weight",
-            format!("no `dense.weight` and no other [2, {k}] `<prefix>weight` with a `<prefix>bias` (nn.Linear to the 2 logits); the file has: {}", preview(&t.keys().cloned().collect::<Vec<_>>())),
+            format!(
+                "no `dense.weight` and no other [2, {k}] `<prefix>weight` with a `<prefix>bias` (nn.Linear to the 2 logits); the file has: {}",
+                preview(&t.keys().cloned().collect::<Vec<_>>())
+            ),
         )),
         many => Err(ExportError::missing(
             "dense.weight",
-            format!("several tensors could be the output layer ({}); name it `dense`", many.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")),
+            format!(
+                "several tensors could be the output layer ({}); name it `dense`",
+                many.iter()
+                    .map(|s| s.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
         )),
     }
 }
