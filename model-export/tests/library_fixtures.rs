@@ -12,7 +12,9 @@ use slipguard_core::model::{ChannelState, Model};
 use slipguard_export::pipeline::{ModelSource, load_float, quantize_calibrated};
 
 fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
 }
 
 struct Errors {
@@ -26,7 +28,11 @@ struct Errors {
 }
 
 fn floats(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
+    v.as_array()
+        .expect("array")
+        .iter()
+        .map(|x| x.as_f64().expect("number"))
+        .collect()
 }
 
 fn check(model_file: &str, settings: Option<&str>, expected: &str) -> Errors {
@@ -36,14 +42,30 @@ fn check(model_file: &str, settings: Option<&str>, expected: &str) -> Errors {
         ..Default::default()
     };
     let loaded = load_float(&src).unwrap_or_else(|e| panic!("{model_file}: {e}"));
-    assert!(loaded.norm_given, "{model_file}: normalisation should come with the settings");
+    assert!(
+        loaded.norm_given,
+        "{model_file}: normalisation should come with the settings"
+    );
     let model = loaded.model;
-    let exp: Value = serde_json::from_str(&std::fs::read_to_string(fixture(expected)).expect("read")).expect("json");
+    let exp: Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture(expected)).expect("read"))
+            .expect("json");
     let seqs = exp["sequences"].as_array().expect("sequences");
     let nf = model.config.feature_count();
-    let mut e = Errors { features: 0.0, logits: 0.0, p_library_features: 0.0, p_end_to_end: 0.0, quant_vs_float: 0.0, quant_vs_library: 0.0, flag_mismatch: 0 };
+    let mut e = Errors {
+        features: 0.0,
+        logits: 0.0,
+        p_library_features: 0.0,
+        p_end_to_end: 0.0,
+        quant_vs_float: 0.0,
+        quant_vs_library: 0.0,
+        flag_mismatch: 0,
+    };
 
-    let raws: Vec<Vec<f32>> = seqs.iter().map(|s| floats(&s["raw"]).into_iter().map(|x| x as f32).collect()).collect();
+    let raws: Vec<Vec<f32>> = seqs
+        .iter()
+        .map(|s| floats(&s["raw"]).into_iter().map(|x| x as f32).collect())
+        .collect();
     let raw_refs: Vec<&[f32]> = raws.iter().map(|r| r.as_slice()).collect();
     let (blob, _q, cal) = quantize_calibrated(&model, &raw_refs, None, true).expect("quantize");
     let aligned = AlignedBlob::new(&blob);
@@ -67,12 +89,20 @@ fn check(model_file: &str, settings: Option<&str>, expected: &str) -> Errors {
         // (2) the library's features through our LSTM(s) and dense layer: the importer alone.
         let mut st = model.new_channel();
         for t in 0..raw.len() {
-            let v: Vec<f32> = feats[t * nf..(t + 1) * nf].iter().map(|&x| x as f32).collect();
+            let v: Vec<f32> = feats[t * nf..(t + 1) * nf]
+                .iter()
+                .map(|&x| x as f32)
+                .collect();
             let l = model.logits(&mut st, &v);
             if let Some(ll) = &logits_lib {
-                e.logits = e.logits.max((l[0] as f64 - ll[2 * t]).abs()).max((l[1] as f64 - ll[2 * t + 1]).abs());
+                e.logits = e
+                    .logits
+                    .max((l[0] as f64 - ll[2 * t]).abs())
+                    .max((l[1] as f64 - ll[2 * t + 1]).abs());
             }
-            e.p_library_features = e.p_library_features.max((p_from_logits(l) as f64 - p_lib[t]).abs());
+            e.p_library_features = e
+                .p_library_features
+                .max((p_from_logits(l) as f64 - p_lib[t]).abs());
         }
         // (3) end to end, raw samples → p; (4) the quantized blob vs the float model and the library.
         let mut fs = model.new_channel();
@@ -94,66 +124,145 @@ fn check(model_file: &str, settings: Option<&str>, expected: &str) -> Errors {
         "{model_file:<28} ({} {}): max |Δfeature| {:.2e}, |Δlogit| {:.2e}, |Δp| (library features) {:.2e}, |Δp| end-to-end {:.2e}; blob: |p_q − p_float| {:.4}, |p_q − p_library| {:.4}, cell bits {:?}",
         exp["library"].as_str().unwrap_or("?"),
         exp["library_version"].as_str().unwrap_or("?"),
-        e.features, e.logits, e.p_library_features, e.p_end_to_end, e.quant_vs_float, e.quant_vs_library, cal.cell_frac_bits
+        e.features,
+        e.logits,
+        e.p_library_features,
+        e.p_end_to_end,
+        e.quant_vs_float,
+        e.quant_vs_library,
+        cal.cell_frac_bits
     );
     e
 }
 
 fn assert_close(e: &Errors, what: &str) {
-    assert!(e.features < 1e-5, "{what}: features differ by {}", e.features);
+    assert!(
+        e.features < 1e-5,
+        "{what}: features differ by {}",
+        e.features
+    );
     assert!(e.logits < 1e-4, "{what}: logits differ by {}", e.logits);
-    assert!(e.p_library_features < 2e-5, "{what}: p differs by {}", e.p_library_features);
-    assert!(e.p_end_to_end < 1e-4, "{what}: end-to-end p differs by {}", e.p_end_to_end);
-    assert!(e.quant_vs_float < 0.02, "{what}: quantized p differs from float by {}", e.quant_vs_float);
-    assert!(e.quant_vs_library < 0.02, "{what}: quantized p differs from the library by {}", e.quant_vs_library);
-    assert_eq!(e.flag_mismatch, 0, "{what}: flags differ away from the threshold");
+    assert!(
+        e.p_library_features < 2e-5,
+        "{what}: p differs by {}",
+        e.p_library_features
+    );
+    assert!(
+        e.p_end_to_end < 1e-4,
+        "{what}: end-to-end p differs by {}",
+        e.p_end_to_end
+    );
+    assert!(
+        e.quant_vs_float < 0.02,
+        "{what}: quantized p differs from float by {}",
+        e.quant_vs_float
+    );
+    assert!(
+        e.quant_vs_library < 0.02,
+        "{what}: quantized p differs from the library by {}",
+        e.quant_vs_library
+    );
+    assert_eq!(
+        e.flag_mismatch, 0,
+        "{what}: flags differ away from the threshold"
+    );
 }
 
 #[test]
 fn safetensors_variant_c_with_force_difference() {
-    assert_close(&check("torch_c.safetensors", None, "torch_c.expected.json"), "torch_c");
+    assert_close(
+        &check("torch_c.safetensors", None, "torch_c.expected.json"),
+        "torch_c",
+    );
 }
 
 #[test]
 fn safetensors_dual_variant_d() {
-    assert_close(&check("torch_d.safetensors", None, "torch_d.expected.json"), "torch_d");
+    assert_close(
+        &check("torch_d.safetensors", None, "torch_d.expected.json"),
+        "torch_d",
+    );
 }
 
 #[test]
 fn safetensors_plain_state_dict_with_prefix_variant_a() {
-    assert_close(&check("torch_a_prefixed.safetensors", None, "torch_a_prefixed.expected.json"), "torch_a");
+    assert_close(
+        &check(
+            "torch_a_prefixed.safetensors",
+            None,
+            "torch_a_prefixed.expected.json",
+        ),
+        "torch_a",
+    );
 }
 
 #[test]
 fn onnx_dynamo_export_with_external_data() {
-    assert_close(&check("onnx_c.onnx", Some("onnx_c.settings.json"), "onnx_c.expected.json"), "onnx_c");
+    assert_close(
+        &check(
+            "onnx_c.onnx",
+            Some("onnx_c.settings.json"),
+            "onnx_c.expected.json",
+        ),
+        "onnx_c",
+    );
 }
 
 #[test]
 fn onnx_legacy_export_dual_concatenated_bands_first() {
-    assert_close(&check("onnx_d_legacy.onnx", Some("onnx_d_legacy.settings.json"), "onnx_d_legacy.expected.json"), "onnx_d");
+    assert_close(
+        &check(
+            "onnx_d_legacy.onnx",
+            Some("onnx_d_legacy.settings.json"),
+            "onnx_d_legacy.expected.json",
+        ),
+        "onnx_d",
+    );
 }
 
 #[test]
 fn keras_archive_variant_c_softmax_head() {
-    assert_close(&check("keras_c.keras", Some("keras_c.settings.json"), "keras_c.expected.json"), "keras_c");
+    assert_close(
+        &check(
+            "keras_c.keras",
+            Some("keras_c.settings.json"),
+            "keras_c.expected.json",
+        ),
+        "keras_c",
+    );
 }
 
 #[test]
 fn keras_weights_h5_only() {
-    assert_close(&check("keras_c.weights.h5", Some("keras_c.settings.json"), "keras_c.expected.json"), "keras_c.weights.h5");
+    assert_close(
+        &check(
+            "keras_c.weights.h5",
+            Some("keras_c.settings.json"),
+            "keras_c.expected.json",
+        ),
+        "keras_c.weights.h5",
+    );
 }
 
 #[test]
 fn keras_dual_concatenated_bands_first() {
-    assert_close(&check("keras_d.keras", Some("keras_d.settings.json"), "keras_d.expected.json"), "keras_d");
+    assert_close(
+        &check(
+            "keras_d.keras",
+            Some("keras_d.settings.json"),
+            "keras_d.expected.json",
+        ),
+        "keras_d",
+    );
 }
 
 /// The comparison has teeth: a model with ONNX's gate order left in (i, o, f, c read as
 /// i, f, g, o) or with the dual model's dense columns swapped is far from the library.
 #[test]
 fn wrong_gate_order_or_column_order_is_detected() {
-    let exp: Value = serde_json::from_str(&std::fs::read_to_string(fixture("onnx_c.expected.json")).unwrap()).unwrap();
+    let exp: Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture("onnx_c.expected.json")).unwrap())
+            .unwrap();
     let s = &exp["sequences"][0];
     let (feats, logits_lib) = (floats(&s["features"]), floats(&s["logits"]));
     let max_logit_error = |m: &slipguard_core::float::FloatModel| {
@@ -161,13 +270,22 @@ fn wrong_gate_order_or_column_order_is_detected() {
         let mut st = m.new_channel();
         let mut err = 0f64;
         for t in 0..feats.len() / nf {
-            let v: Vec<f32> = feats[t * nf..(t + 1) * nf].iter().map(|&x| x as f32).collect();
+            let v: Vec<f32> = feats[t * nf..(t + 1) * nf]
+                .iter()
+                .map(|&x| x as f32)
+                .collect();
             let l = m.logits(&mut st, &v);
-            err = err.max((l[0] as f64 - logits_lib[2 * t]).abs()).max((l[1] as f64 - logits_lib[2 * t + 1]).abs());
+            err = err
+                .max((l[0] as f64 - logits_lib[2 * t]).abs())
+                .max((l[1] as f64 - logits_lib[2 * t + 1]).abs());
         }
         err
     };
-    let src = ModelSource { path: fixture("onnx_c.onnx"), settings_file: Some(fixture("onnx_c.settings.json")), ..Default::default() };
+    let src = ModelSource {
+        path: fixture("onnx_c.onnx"),
+        settings_file: Some(fixture("onnx_c.settings.json")),
+        ..Default::default()
+    };
     let good = load_float(&src).unwrap().model;
     assert!(max_logit_error(&good) < 1e-4);
     let mut bad = good.clone();
@@ -180,26 +298,40 @@ fn wrong_gate_order_or_column_order_is_detected() {
     println!("gate order left as ONNX's: max |Δlogit| {e:.3}");
     assert!(e > 0.05, "a gate-order mix-up must be visible, got {e}");
 
-    let src = ModelSource { path: fixture("keras_d.keras"), settings_file: Some(fixture("keras_d.settings.json")), ..Default::default() };
+    let src = ModelSource {
+        path: fixture("keras_d.keras"),
+        settings_file: Some(fixture("keras_d.settings.json")),
+        ..Default::default()
+    };
     let mut dual = load_float(&src).unwrap().model;
     let (h0, h1) = (dual.lstms[0].hidden, dual.lstms[1].hidden);
     let k = h0 + h1;
     for r in 0..2 {
         let row = dual.dense.w[r * k..(r + 1) * k].to_vec();
-        let swapped: Vec<f32> = row[h0..].iter().chain(&row[..h0]).copied().take(k).collect();
+        let swapped: Vec<f32> = row[h0..]
+            .iter()
+            .chain(&row[..h0])
+            .copied()
+            .take(k)
+            .collect();
         if h0 == h1 {
             dual.dense.w[r * k..(r + 1) * k].copy_from_slice(&swapped);
         } else {
             dual.dense.w[r * k..(r + 1) * k].reverse();
         }
     }
-    let exp: Value = serde_json::from_str(&std::fs::read_to_string(fixture("keras_d.expected.json")).unwrap()).unwrap();
+    let exp: Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture("keras_d.expected.json")).unwrap())
+            .unwrap();
     let s = &exp["sequences"][0];
     let (feats, l_lib) = (floats(&s["features"]), floats(&s["logits"]));
     let mut st = dual.new_channel();
     let mut err = 0f64;
     for t in 0..feats.len() / 11 {
-        let v: Vec<f32> = feats[t * 11..(t + 1) * 11].iter().map(|&x| x as f32).collect();
+        let v: Vec<f32> = feats[t * 11..(t + 1) * 11]
+            .iter()
+            .map(|&x| x as f32)
+            .collect();
         let l = dual.logits(&mut st, &v);
         err = err.max((l[1] as f64 - l_lib[2 * t + 1]).abs());
     }
