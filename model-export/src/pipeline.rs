@@ -271,7 +271,7 @@ pub fn float_for_blob(
         .into_iter()
         .filter(|(k, _)| k != "model_id")
         .collect();
-    overrides.extend(src.overrides.drain(..));
+    overrides.append(&mut src.overrides);
     src.overrides = overrides;
     let mut loaded = load_float(&src)?;
     if !loaded.norm_given {

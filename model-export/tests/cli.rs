@@ -48,13 +48,11 @@ fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
+/// (name, dtype, shape, bytes) of one tensor.
+type Tensor = (String, Dtype, Vec<usize>, Vec<u8>);
+
 /// Tensors of a safetensors file as (name, dtype, shape, bytes), and its metadata.
-fn read_st(
-    path: &Path,
-) -> (
-    Vec<(String, Dtype, Vec<usize>, Vec<u8>)>,
-    HashMap<String, String>,
-) {
+fn read_st(path: &Path) -> (Vec<Tensor>, HashMap<String, String>) {
     let bytes = std::fs::read(path).expect("read");
     let st = SafeTensors::deserialize(&bytes).expect("parse");
     let (_, meta) = SafeTensors::read_metadata(&bytes).expect("meta");
@@ -67,11 +65,7 @@ fn read_st(
     (v, meta.metadata().clone().unwrap_or_default())
 }
 
-fn write_st(
-    path: &Path,
-    tensors: &[(String, Dtype, Vec<usize>, Vec<u8>)],
-    meta: &HashMap<String, String>,
-) {
+fn write_st(path: &Path, tensors: &[Tensor], meta: &HashMap<String, String>) {
     let views: Vec<(String, TensorView<'_>)> = tensors
         .iter()
         .map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).expect("view")))

@@ -246,10 +246,13 @@ fn check_config(
     Ok((lstms, dense, order))
 }
 
+/// One layer's variables: group path, shapes, values.
+type H5Layer<const N: usize> = (String, [Vec<usize>; N], [Vec<f32>; N]);
+
 /// Weights read from the `.weights.h5`.
 struct H5Weights {
-    lstms: Vec<(String, [Vec<usize>; 3], [Vec<f32>; 3])>,
-    dense: Option<(String, [Vec<usize>; 2], [Vec<f32>; 2])>,
+    lstms: Vec<H5Layer<3>>,
+    dense: Option<H5Layer<2>>,
 }
 
 fn read_ds(path: &Path, f: &hdf5_reader::Hdf5File, name: &str) -> Result<(Vec<usize>, Vec<f32>)> {

@@ -559,7 +559,7 @@ fn read_lstm(
     };
     let (wn, w) = get(1, "W")?;
     let (rn, r) = get(2, "R")?;
-    if w.dims.len() != 3 || w.dims[1] % 4 != 0 || w.dims[1] == 0 {
+    if w.dims.len() != 3 || !w.dims[1].is_multiple_of(4) || w.dims[1] == 0 {
         return Err(ExportError::shape(wn, "[1, 4H, I]", dims(&w.dims)));
     }
     if w.dims[0] != 1 {

@@ -164,7 +164,7 @@ fn find_lstms(
                 format!("`{n}` is present but its recurrent weights are not"),
             )
         })?;
-        if wih.shape.len() != 2 || wih.shape[0] == 0 || wih.shape[0] % 4 != 0 {
+        if wih.shape.len() != 2 || wih.shape[0] == 0 || !wih.shape[0].is_multiple_of(4) {
             return Err(ExportError::shape(n, "[4H, I]", dims(&wih.shape)));
         }
         let h = wih.shape[0] / 4;
