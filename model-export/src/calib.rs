@@ -256,6 +256,11 @@ pub struct Agreement {
     pub flag_agreement: f64,
     /// Steps whose flags differ.
     pub flag_disagreements: usize,
+    /// Steps at which the float p, over the hysteresis window ending there, stays at least
+    /// [`DECISIVE_MARGIN`] from the threshold (a flag there does not hinge on rounding).
+    pub decisive_steps: usize,
+    /// Flag agreement over the decisive steps (what `verify` checks).
+    pub decisive_flag_agreement: f64,
     /// Largest |p_q − p_f|.
     pub max_abs_dp: f32,
     /// Mean |p_q − p_f|.
@@ -287,6 +292,9 @@ impl Agreement {
     }
 }
 
+/// Distance of p from the threshold below which a flag difference is a rounding tie.
+pub const DECISIVE_MARGIN: f32 = 0.02;
+
 /// Runs both models over every sequence (from a reset state each) and compares them.
 pub fn agreement(
     float: &FloatModel,
@@ -301,6 +309,13 @@ pub fn agreement(
     })?;
     let rate = float.config.sample_rate_hz() as f64;
     let (mut steps, mut disagree) = (0usize, 0usize);
+    let (mut decisive, mut decisive_disagree) = (0usize, 0usize);
+    let th = float.config.threshold_q15 as f32 / 32768.0;
+    let window = float
+        .config
+        .raise_after
+        .max(float.config.clear_after)
+        .max(1) as usize;
     let (mut max_dp, mut sum_dp, mut max_dh) = (0f32, 0f64, 0f32);
     let (mut ev_f, mut ev_q) = (Vec::new(), Vec::new());
     let pb = bar(seqs.len(), "comparing", quiet);
@@ -308,6 +323,7 @@ pub fn agreement(
         let mut fs = float.new_channel();
         let mut qs = ChannelState::new();
         let (mut pf, mut pq) = (Vec::new(), Vec::new());
+        let mut close_run = usize::MAX; // steps since p was last within the margin
         for &raw in &s.samples {
             let f = float.step(&mut fs, raw);
             let q = model.step(&mut qs, raw.round() as i32);
@@ -322,6 +338,17 @@ pub fn agreement(
             }
             if f.unstable != q.unstable {
                 disagree += 1;
+            }
+            close_run = if (f.p_unstable - th).abs() < DECISIVE_MARGIN {
+                0
+            } else {
+                close_run.saturating_add(1)
+            };
+            if close_run >= window {
+                decisive += 1;
+                if f.unstable != q.unstable {
+                    decisive_disagree += 1;
+                }
             }
             let st = |u: bool| {
                 if u {
@@ -371,6 +398,12 @@ pub fn agreement(
         steps,
         flag_agreement: 1.0 - disagree as f64 / steps as f64,
         flag_disagreements: disagree,
+        decisive_steps: decisive,
+        decisive_flag_agreement: if decisive == 0 {
+            1.0
+        } else {
+            1.0 - decisive_disagree as f64 / decisive as f64
+        },
         max_abs_dp: max_dp,
         mean_abs_dp: (sum_dp / steps as f64) as f32,
         max_abs_dh: max_dh,

@@ -213,7 +213,8 @@ struct VerifyArgs {
     /// Use at most this many trials.
     #[arg(long)]
     max_trials: Option<usize>,
-    /// Fail (exit 13) below this flag agreement.
+    /// Fail (exit 13) below this flag agreement on decisive steps (float p at least 0.02 from
+    /// the threshold over the hysteresis window).
     #[arg(long, default_value_t = 0.99)]
     min_flag_agreement: f64,
     /// Fail (exit 13) above this max |Δp|.
@@ -314,10 +315,12 @@ fn run_export(a: ExportArgs) -> Result<()> {
 
 fn print_agreement(ag: &calib::Agreement) {
     println!(
-        "quantized vs float: flag agreement {:.3} % ({} of {} steps differ), max |Δp| {:.5}, mean |Δp| {:.6}",
+        "quantized vs float: flag agreement {:.3} % ({} of {} steps differ; {:.3} % on the {} decisive steps), max |Δp| {:.5}, mean |Δp| {:.6}",
         100.0 * ag.flag_agreement,
         ag.flag_disagreements,
         ag.steps,
+        100.0 * ag.decisive_flag_agreement,
+        ag.decisive_steps,
         ag.max_abs_dp,
         ag.mean_abs_dp
     );
@@ -355,10 +358,10 @@ fn run_verify(a: VerifyArgs) -> Result<()> {
                 .as_bytes(),
         )?;
     }
-    if ag.flag_agreement < a.min_flag_agreement || ag.max_abs_dp > a.max_dp {
+    if ag.decisive_flag_agreement < a.min_flag_agreement || ag.max_abs_dp > a.max_dp {
         return Err(ExportError::VerifyFailed(format!(
-            "flag agreement {:.3} % (need ≥ {:.3} %), max |Δp| {:.5} (need ≤ {})",
-            100.0 * ag.flag_agreement,
+            "flag agreement on decisive steps {:.3} % (need ≥ {:.3} %), max |Δp| {:.5} (need ≤ {})",
+            100.0 * ag.decisive_flag_agreement,
             100.0 * a.min_flag_agreement,
             ag.max_abs_dp,
             a.max_dp

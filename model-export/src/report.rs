@@ -173,8 +173,8 @@ impl ExportReport {
                     a.sequences, a.steps
                 ));
                 s.push_str(&format!(
-                    "| flag agreement | max \\|Δp\\| | mean \\|Δp\\| | max \\|Δh\\| |\n|---:|---:|---:|---:|\n| {:.3} % ({} steps differ) | {:.5} | {:.6} | {:.5} |\n",
-                    100.0 * a.flag_agreement, a.flag_disagreements, a.max_abs_dp, a.mean_abs_dp, a.max_abs_dh
+                    "| flag agreement | on decisive steps¹ | max \\|Δp\\| | mean \\|Δp\\| | max \\|Δh\\| |\n|---:|---:|---:|---:|---:|\n| {:.3} % ({} steps differ) | {:.3} % of {} | {:.5} | {:.6} | {:.5} |\n\n¹ steps where the float p stays ≥ 0.02 from the threshold over the hysteresis window.\n",
+                    100.0 * a.flag_agreement, a.flag_disagreements, 100.0 * a.decisive_flag_agreement, a.decisive_steps, a.max_abs_dp, a.mean_abs_dp, a.max_abs_dh
                 ));
                 if let (Some(f), Some(q)) = (&a.float_metrics, &a.quant_metrics) {
                     s.push_str("\n| model | success rate | ahead-drop rate | false-alarm rate |\n|---|---:|---:|---:|\n");
