@@ -407,3 +407,72 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
     m.insert("model_id".into(), format!("{:#010x}", config.model_id));
     m
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_paper_fingertip_setup() {
+        let r = Settings::defaults().resolve().unwrap();
+        let c = r.config;
+        assert_eq!(c.variant, Variant::ForceStft);
+        assert_eq!(c.sample_rate_mhz, 16_700);
+        assert_eq!((c.input_offset, c.input_full_scale), (0, 10_000));
+        assert_eq!(c.stft, StftConfig::PAPER);
+        assert_eq!(c.threshold_q15, 16_384);
+        assert!(!c.force_diff && r.norm_mean.is_none());
+    }
+
+    #[test]
+    fn describe_round_trips_through_resolve() {
+        let mut s = Settings::defaults();
+        s.set("variant", "d");
+        s.set("force_diff", "true");
+        s.set("stft_shape", "hann");
+        s.set("threshold", "0.625");
+        s.set("name", "rt");
+        let c = s.resolve().unwrap().config;
+        let mut back = Settings::defaults();
+        back.merge(&describe(&c));
+        let mut c2 = back.resolve().unwrap().config;
+        c2.model_id = c.model_id;
+        assert_eq!(c, c2);
+    }
+
+    #[test]
+    fn later_sources_win_and_unknown_keys_are_kept_for_a_warning() {
+        let mut s = Settings::defaults();
+        let file: BTreeMap<String, String> = [
+            ("variant".to_string(), "a".to_string()),
+            ("lr".to_string(), "0.0006".to_string()),
+        ]
+        .into();
+        s.merge(&file);
+        s.set("variant", "b");
+        assert_eq!(s.resolve().unwrap().config.variant, Variant::Stft);
+        assert_eq!(s.unknown, vec!["lr".to_string()]);
+    }
+
+    #[test]
+    fn each_bad_value_names_its_key() {
+        for (k, v) in [
+            ("variant", "x"),
+            ("threshold", "0"),
+            ("input_full_scale", "-3"),
+            ("stft_window", "2"),
+            ("raise_after", "0"),
+            ("norm_mean", "[1, \"a\"]"),
+            ("slipguard.format", "2"),
+        ] {
+            let mut s = Settings::defaults();
+            s.set(k, v);
+            match s.resolve() {
+                Err(ExportError::Settings { key, .. }) => {
+                    assert!(key.contains(k.split('_').next().unwrap_or(k)), "{k}: {key}")
+                }
+                other => panic!("{k}={v}: {other:?}"),
+            }
+        }
+    }
+}

@@ -314,3 +314,16 @@ fn find_dense(
 fn bias_of(weight: &str) -> String {
     format!("{}bias", weight.strip_suffix("weight").unwrap_or(weight))
 }
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn half_precision_converts_exactly() {
+        use super::f16_to_f32;
+        assert_eq!(f16_to_f32(0x3c00), 1.0);
+        assert_eq!(f16_to_f32(0xc000), -2.0);
+        assert_eq!(f16_to_f32(0x3555), 0.333_251_95);
+        assert_eq!(f16_to_f32(0x0001), 2f32.powi(-24));
+        assert!(f16_to_f32(0x7c00).is_infinite() && f16_to_f32(0x7e00).is_nan());
+    }
+}
