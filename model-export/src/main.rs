@@ -1,5 +1,399 @@
-//! `slipguard-export`: float weights → quantized model blob. The importers and calibration
-//! arrive with the export issue; today it can inspect a blob.
-fn main() {
-    println!("slipguard-export: see `slipguard-export --help`");
+//! `slipguard-export`: trained float weights (PyTorch/safetensors, ONNX, Keras 3) → the
+//! firmware's quantized model blob, with calibration, a report, `inspect` and `verify`.
+//! Exit codes: docs/export.md.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+use slipguard_core::blob::AlignedBlob;
+use slipguard_export::calib;
+use slipguard_export::error::{ExportError, Result};
+use slipguard_export::import::Format;
+use slipguard_export::inspect;
+use slipguard_export::pipeline::{self, ExportOptions, ModelSource};
+use slipguard_export::write::{atomic_write, rust_snippet};
+
+const EXAMPLES: &str = "\
+Examples, one per input format:
+  # our trainer / any PyTorch nn.LSTM + nn.Linear state_dict saved as safetensors (settings in its metadata)
+  slipguard-export export runs/c.safetensors --data shared/data/eagle-shoal -o model.bin --rust-snippet model_blob.rs
+
+  # ONNX from torch.onnx.export (settings from a JSON file and options)
+  slipguard-export export slip.onnx --settings slip.settings.json --variant c --data rec/ -o model.bin
+
+  # Keras 3 archive (activations are checked from its config)
+  slipguard-export export slip.keras --variant d --norm-mean '[...]' --norm-std '[...]' --data rec/ -o model.bin
+
+  # Keras 3 weights only (add --keras-config config.json to check the activations)
+  slipguard-export export slip.weights.h5 --variant c --fit-norm --data rec/ -o model.bin
+
+  slipguard-export inspect model.bin
+  slipguard-export verify model.bin --float runs/c.safetensors --data shared/data/eagle-shoal
+
+Exit codes: 0 ok, 2 usage, 3 I/O, 4 unreadable/truncated file, 5 missing or misnamed tensor,
+6 wrong shape, 7 NaN/Inf weight, 8 unsupported construct, 9 over the firmware's bounds,
+10 bad setting, 11 data, 12 invalid blob, 13 verification failed.";
+
+#[derive(Parser)]
+#[command(name = "slipguard-export", version, about = "Trained float LSTM → slipguard's quantized model blob (format v1)", after_help = EXAMPLES)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Import a model, calibrate, quantize, write the blob, report and optional Rust snippet.
+    #[command(after_help = EXAMPLES)]
+    Export(ExportArgs),
+    /// Print a blob's header, tensor sizes, MACs per step, flash and RAM needed, and CRC.
+    Inspect {
+        /// The blob.
+        blob: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Rerun the quantized-vs-float comparison of a blob against its float checkpoint.
+    #[command(after_help = EXAMPLES)]
+    Verify(VerifyArgs),
+}
+
+/// How to read the model and its settings (later sources win: defaults < file metadata <
+/// --settings < options).
+#[derive(Args, Clone, Default)]
+struct ModelArgs {
+    /// Input format (default: from the file name, then the first bytes).
+    #[arg(long, value_enum)]
+    format: Option<Format>,
+    /// Keras model config (config.json) for a bare .weights.h5, to check its activations.
+    #[arg(long)]
+    keras_config: Option<PathBuf>,
+    /// JSON object of settings (same keys as the safetensors metadata, docs/export.md).
+    #[arg(long)]
+    settings: Option<PathBuf>,
+    /// Variant: a|lstm, b|stft-lstm, c|data-stft-lstm (default), d|lstm-stft-lstm.
+    #[arg(long)]
+    variant: Option<String>,
+    /// d(t) = x(t) - x(t-1) is an input (true/false; default false).
+    #[arg(long)]
+    force_diff: Option<String>,
+    /// Sample rate the model was trained at, Hz (default 16.7).
+    #[arg(long)]
+    sample_rate: Option<String>,
+    /// Unit of raw samples: mN (default) or counts.
+    #[arg(long)]
+    input_unit: Option<String>,
+    /// Raw value mapped to 0 (default 0).
+    #[arg(long, allow_hyphen_values = true)]
+    input_offset: Option<String>,
+    /// Raw span mapped to +1.0 (default 10000).
+    #[arg(long)]
+    input_full_scale: Option<String>,
+    /// STFT window length (default 20).
+    #[arg(long)]
+    stft_window: Option<String>,
+    /// First STFT bin (default 1).
+    #[arg(long)]
+    stft_first_bin: Option<String>,
+    /// Number of STFT bins (default 10).
+    #[arg(long)]
+    stft_bins: Option<String>,
+    /// STFT window shape: rectangular (default) or hann.
+    #[arg(long)]
+    stft_shape: Option<String>,
+    /// p(unstable) threshold (default 0.5).
+    #[arg(long)]
+    threshold: Option<String>,
+    /// Steps at/above the threshold before the flag rises (default 1).
+    #[arg(long)]
+    raise_after: Option<String>,
+    /// Steps below the threshold before the flag clears (default 1).
+    #[arg(long)]
+    clear_after: Option<String>,
+    /// Model name (ASCII, ≤ 12 bytes; default: the file's stem).
+    #[arg(long)]
+    name: Option<String>,
+    /// Model id, u32 (default: CRC-32 of the float weights).
+    #[arg(long)]
+    model_id: Option<String>,
+    /// Normalisation means, JSON array in feature order [force, d(t), bands...].
+    #[arg(long, allow_hyphen_values = true)]
+    norm_mean: Option<String>,
+    /// Normalisation standard deviations, JSON array.
+    #[arg(long)]
+    norm_std: Option<String>,
+}
+
+impl ModelArgs {
+    fn source(&self, path: PathBuf) -> ModelSource {
+        let pairs = [
+            ("variant", &self.variant),
+            ("force_diff", &self.force_diff),
+            ("sample_rate_hz", &self.sample_rate),
+            ("input_unit", &self.input_unit),
+            ("input_offset", &self.input_offset),
+            ("input_full_scale", &self.input_full_scale),
+            ("stft_window", &self.stft_window),
+            ("stft_first_bin", &self.stft_first_bin),
+            ("stft_bins", &self.stft_bins),
+            ("stft_shape", &self.stft_shape),
+            ("threshold", &self.threshold),
+            ("raise_after", &self.raise_after),
+            ("clear_after", &self.clear_after),
+            ("name", &self.name),
+            ("model_id", &self.model_id),
+            ("norm_mean", &self.norm_mean),
+            ("norm_std", &self.norm_std),
+        ];
+        ModelSource {
+            path,
+            format: self.format,
+            keras_config: self.keras_config.clone(),
+            settings_file: self.settings.clone(),
+            overrides: pairs
+                .iter()
+                .filter_map(|(k, v)| v.as_ref().map(|v| (k.to_string(), v.clone())))
+                .collect(),
+        }
+    }
+}
+
+#[derive(Args)]
+struct ExportArgs {
+    /// The trained model: .safetensors, .onnx, .keras or .weights.h5.
+    model: PathBuf,
+    #[command(flatten)]
+    m: ModelArgs,
+    /// Output blob.
+    #[arg(short, long, default_value = "model.bin")]
+    output: PathBuf,
+    /// Calibration data: a recording (.csv), a folder of recordings, or an eagle-shoal folder.
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Validation data for the quantized-vs-float agreement (default: the calibration data).
+    #[arg(long)]
+    validation: Option<PathBuf>,
+    /// Use at most this many trials of each data set.
+    #[arg(long)]
+    max_trials: Option<usize>,
+    /// Fit the normalisation on --data when the model carries none (must match training).
+    #[arg(long)]
+    fit_norm: bool,
+    /// Fixed cell fractional bits C (c is Q(15-C).C), e.g. 11 or 11,10, instead of calibrating.
+    #[arg(long)]
+    cell_bits: Option<String>,
+    /// Also write a Rust source file that places the blob in the firmware's `.model` section.
+    #[arg(long)]
+    rust_snippet: Option<PathBuf>,
+    /// Report path prefix: writes PREFIX.md and PREFIX.json (default: the output with .report).
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Do not write the report files.
+    #[arg(long)]
+    no_report: bool,
+    /// No progress bars.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+#[derive(Args)]
+struct VerifyArgs {
+    /// The blob to check.
+    blob: PathBuf,
+    /// The float checkpoint it was exported from.
+    #[arg(long = "float")]
+    float: PathBuf,
+    /// Data to compare on (recording, folder, eagle-shoal folder).
+    #[arg(long)]
+    data: PathBuf,
+    #[command(flatten)]
+    m: ModelArgs,
+    /// Use at most this many trials.
+    #[arg(long)]
+    max_trials: Option<usize>,
+    /// Fail (exit 13) below this flag agreement on decisive steps (float p at least 0.02 from
+    /// the threshold over the hysteresis window).
+    #[arg(long, default_value_t = 0.99)]
+    min_flag_agreement: f64,
+    /// Fail (exit 13) above this max |Δp|.
+    #[arg(long, default_value_t = 0.05)]
+    max_dp: f32,
+    /// Write the agreement as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// No progress bars.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+fn cell_bits(s: &str) -> Result<[u8; 2]> {
+    let parts: Vec<&str> = s.split(',').collect();
+    let parse = |p: &str| -> Result<u8> {
+        p.trim()
+            .parse::<u8>()
+            .ok()
+            .filter(|b| (1..=15).contains(b))
+            .ok_or_else(|| ExportError::Usage(format!("--cell-bits: `{p}` is not in 1..=15")))
+    };
+    match parts.as_slice() {
+        [a] => Ok([parse(a)?, parse(a)?]),
+        [a, b] => Ok([parse(a)?, parse(b)?]),
+        _ => Err(ExportError::Usage("--cell-bits takes C or C0,C1".into())),
+    }
+}
+
+fn run_export(a: ExportArgs) -> Result<()> {
+    let opts = ExportOptions {
+        source: a.m.source(a.model.clone()),
+        data: a.data.clone(),
+        validation: a.validation.clone(),
+        max_trials: a.max_trials,
+        fit_norm: a.fit_norm,
+        cell_bits: a.cell_bits.as_deref().map(cell_bits).transpose()?,
+        quiet: a.quiet,
+    };
+    let ex = pipeline::export(&opts)?;
+    // Everything is computed before the first byte is written; each file goes through a rename.
+    atomic_write(&a.output, &ex.blob)?;
+    let name = ex.model.config.name_str().to_string();
+    if let Some(p) = &a.rust_snippet {
+        atomic_write(
+            p,
+            rust_snippet(
+                &ex.blob,
+                &a.model.display().to_string(),
+                &name,
+                ex.report.blob.crc,
+            )
+            .as_bytes(),
+        )?;
+    }
+    if !a.no_report {
+        let prefix = a.report.clone().unwrap_or_else(|| {
+            let mut p = a.output.clone().into_os_string();
+            p.push(".report");
+            PathBuf::from(p)
+        });
+        let with = |ext: &str| {
+            let mut p = prefix.clone().into_os_string();
+            p.push(ext);
+            PathBuf::from(p)
+        };
+        let (md, js) = (with(".md"), with(".json"));
+        atomic_write(&md, ex.report.markdown().as_bytes())?;
+        let json = serde_json::to_string_pretty(&ex.report).unwrap_or_default();
+        atomic_write(&js, json.as_bytes())?;
+        eprintln!("report: {} and {}", md.display(), js.display());
+    }
+    let r = &ex.report;
+    println!(
+        "wrote {} ({} bytes, CRC-32 {:#010x}): {} `{}`, hidden {:?}, {} MACs/step",
+        a.output.display(),
+        ex.blob.len(),
+        r.blob.crc,
+        ex.model.config.variant.name(),
+        name,
+        &ex.model.config.hidden[..ex.model.lstms.len()],
+        r.blob.macs_lstm_dense + r.blob.macs_stft
+    );
+    for n in &r.notes {
+        eprintln!("note: {n}");
+    }
+    if let Some(c) = &r.calibration {
+        println!(
+            "calibration: {} sequences, {} steps, max|c| {:?} → cell bits {:?}",
+            c.sequences, c.steps, c.max_abs_cell, c.cell_frac_bits
+        );
+    }
+    if let Some(ag) = &r.agreement {
+        print_agreement(ag);
+    }
+    Ok(())
+}
+
+fn print_agreement(ag: &calib::Agreement) {
+    println!(
+        "quantized vs float: flag agreement {:.3} % ({} of {} steps differ; {:.3} % on the {} decisive steps), max |Δp| {:.5}, mean |Δp| {:.6}",
+        100.0 * ag.flag_agreement,
+        ag.flag_disagreements,
+        ag.steps,
+        100.0 * ag.decisive_flag_agreement,
+        ag.decisive_steps,
+        ag.max_abs_dp,
+        ag.mean_abs_dp
+    );
+    if let (Some(f), Some(q)) = (&ag.float_metrics, &ag.quant_metrics) {
+        let p = |x: Option<f64>| x.map_or("–".to_string(), |v| format!("{:.2} %", 100.0 * v));
+        println!(
+            "success rate float {} → quantized {}; ahead-drop rate float {} → quantized {}",
+            p(f.success_rate),
+            p(q.success_rate),
+            p(f.ahead_drop_rate),
+            p(q.ahead_drop_rate)
+        );
+    }
+}
+
+fn run_verify(a: VerifyArgs) -> Result<()> {
+    let bytes = pipeline::read(&a.blob)?;
+    let aligned = AlignedBlob::new(&bytes);
+    let blob = aligned.parse().map_err(|e| ExportError::Blob {
+        path: a.blob.clone(),
+        source: e,
+    })?;
+    let (float, notes) = pipeline::float_for_blob(&a.m.source(a.float.clone()), &blob)?;
+    for n in notes {
+        eprintln!("note: {n}");
+    }
+    let data = calib::load_data(&a.data, &blob.config, a.max_trials, a.quiet)?;
+    let ag = calib::agreement(&float, &bytes, &data.sequences, a.quiet)?;
+    print_agreement(&ag);
+    if let Some(j) = &a.json {
+        atomic_write(
+            j,
+            serde_json::to_string_pretty(&ag)
+                .unwrap_or_default()
+                .as_bytes(),
+        )?;
+    }
+    if ag.decisive_flag_agreement < a.min_flag_agreement || ag.max_abs_dp > a.max_dp {
+        return Err(ExportError::VerifyFailed(format!(
+            "flag agreement on decisive steps {:.3} % (need ≥ {:.3} %), max |Δp| {:.5} (need ≤ {})",
+            100.0 * ag.decisive_flag_agreement,
+            100.0 * a.min_flag_agreement,
+            ag.max_abs_dp,
+            a.max_dp
+        )));
+    }
+    println!("verify: OK");
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.cmd {
+        Cmd::Export(a) => run_export(a),
+        Cmd::Inspect { blob, json } => pipeline::read(&blob).and_then(|b| {
+            let info = inspect::inspect(&blob, &b)?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&info).unwrap_or_default()
+                );
+            } else {
+                println!("{info}");
+            }
+            Ok(())
+        }),
+        Cmd::Verify(a) => run_verify(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(e.exit_code() as u8)
+        }
+    }
 }

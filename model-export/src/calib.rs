@@ -1,0 +1,428 @@
+//! Calibration and agreement: runs the float and the quantized model over recorded data (the
+//! data layer's trials, labelled as for training) and measures what quantization costs.
+//!
+//! - calibration: the largest |c| of each LSTM (→ the cell's power-of-two scale, through the
+//!   core's `cell_bits_for` with its headroom), the share of raw samples that saturate the
+//!   Q1.15 input, the share of normalised features clipped at ±8σ (the Q3.12 input range) and
+//!   the largest |h| (Q0.15 covers tanh's range exactly);
+//! - agreement on the same (or validation) data: flag agreement, max and mean |Δp|, and the
+//!   paper's success rate and ahead-drop rate of both models (the data layer's metrics).
+
+use std::path::Path;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use slipguard_core::blob::{AlignedBlob, ModelConfig};
+use slipguard_core::float::FloatModel;
+use slipguard_core::model::{ChannelState, Model};
+use slipguard_core::quantize::{CELL_HEADROOM, DEFAULT_CELL_FRAC_BITS, cell_bits_for};
+use slipguard_core::sample::InputScale;
+use slipguard_host::labels::{self, ChannelSequence, LabelConfig};
+use slipguard_host::metrics::{EvalSequence, EventConfig, Metrics, evaluate};
+use slipguard_host::trial::{Outcome, Stability};
+
+use crate::error::{ExportError, Result};
+
+/// Channel sequences of a data set, as the trainer sees them.
+#[derive(Clone, Debug)]
+pub struct DataSet {
+    /// Where it came from.
+    pub source: String,
+    /// Trials loaded.
+    pub trials: usize,
+    /// Trials without labels (no drop found, unknown outcome), used for calibration only.
+    pub unlabelled: usize,
+    /// Per contact channel: samples of the labelled window and labels.
+    pub sequences: Vec<ChannelSequence>,
+    /// Sample rate of the data, Hz.
+    pub rate_hz: f32,
+    /// Warnings (rate or unit different from the model's).
+    pub warnings: Vec<String>,
+}
+
+/// A bar on stderr for `n` items (hidden when stderr is not a terminal or `quiet`).
+pub fn bar(n: usize, what: &str, quiet: bool) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(n as u64);
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{msg:>12} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
+/// Loads a data set (a recording file, a folder of recordings or an eagle-shoal folder) with
+/// the data layer, labels it and cuts the per-channel sequences. `max_trials` keeps the first N.
+pub fn load_data(
+    path: &Path,
+    config: &ModelConfig,
+    max_trials: Option<usize>,
+    quiet: bool,
+) -> Result<DataSet> {
+    let cfg = LabelConfig::default();
+    let pb = bar(0, "loading", quiet);
+    let trials = slipguard_host::load_path(path, &cfg, |done, total| {
+        pb.set_length(total as u64);
+        pb.set_position(done as u64);
+    })
+    .map_err(|e| ExportError::Data(format!("{}: {e}", path.display())))?;
+    pb.finish_and_clear();
+    let trials: Vec<_> = trials
+        .into_iter()
+        .take(max_trials.unwrap_or(usize::MAX))
+        .collect();
+    if trials.is_empty() {
+        return Err(ExportError::Data(format!("{}: no trials", path.display())));
+    }
+    let mut out = DataSet {
+        source: path.display().to_string(),
+        trials: trials.len(),
+        unlabelled: 0,
+        sequences: Vec::new(),
+        rate_hz: trials[0].rate_hz,
+        warnings: Vec::new(),
+    };
+    let model_rate = config.sample_rate_hz();
+    for t in &trials {
+        if (t.rate_hz - model_rate).abs() > 0.01 * model_rate {
+            let w = format!(
+                "trial {} is sampled at {} Hz, the model at {model_rate} Hz",
+                t.id, t.rate_hz
+            );
+            if out.warnings.len() < 5 {
+                out.warnings.push(w);
+            }
+        }
+        let l = labels::label_annotated(t, &cfg);
+        let seqs = labels::channel_sequences(t, &l);
+        if seqs.is_empty() {
+            out.unlabelled += 1;
+            // Unlabelled trials still calibrate: their contact channels over the window.
+            let start = t.marks.grasp_start.unwrap_or(0).min(t.n_steps());
+            let end = (start + cfg.sequence_len).min(t.n_steps());
+            for (c, s) in t.samples.iter().enumerate() {
+                if t.contact.get(c) == Some(&true) {
+                    out.sequences.push(ChannelSequence {
+                        trial_id: t.id.clone(),
+                        channel: c,
+                        samples: s[start..end].to_vec(),
+                        labels: Vec::new(),
+                        drop_index: None,
+                        outcome: Outcome::Unknown,
+                    });
+                }
+            }
+        }
+        out.sequences.extend(seqs);
+    }
+    if out.sequences.is_empty() {
+        return Err(ExportError::Data(format!(
+            "{}: {} trials but no channel with contact to calibrate on",
+            path.display(),
+            out.trials
+        )));
+    }
+    Ok(out)
+}
+
+/// What the float model does on the calibration data.
+#[derive(Clone, Debug, Serialize)]
+pub struct Calibration {
+    /// Sequences and steps run.
+    pub sequences: usize,
+    /// Steps run.
+    pub steps: usize,
+    /// Largest |c| per LSTM.
+    pub max_abs_cell: Vec<f32>,
+    /// Chosen cell fractional bits per LSTM (c is Q(15-C).C).
+    pub cell_frac_bits: Vec<u8>,
+    /// Largest |h| per LSTM (Q0.15 holds up to 1).
+    pub max_abs_hidden: Vec<f32>,
+    /// Share of raw samples outside the Q1.15 input range (saturated).
+    pub input_saturated: f64,
+    /// Per feature: share of normalised values clipped at ±8σ (Q3.12 range).
+    pub feature_clipped: Vec<f64>,
+    /// Per feature: largest |normalised value|.
+    pub feature_max_abs: Vec<f32>,
+}
+
+/// Runs the float model over the sequences and picks the cell formats (unless `fixed`).
+pub fn calibrate(
+    model: &FloatModel,
+    seqs: &[&[f32]],
+    fixed: Option<[u8; 2]>,
+    quiet: bool,
+) -> Calibration {
+    let n_lstm = model.lstms.len();
+    let nf = model.config.feature_count();
+    let mut max_c = vec![0f32; n_lstm];
+    let mut max_h = vec![0f32; n_lstm];
+    let mut clipped = vec![0usize; nf];
+    let mut fmax = vec![0f32; nf];
+    let (mut steps, mut saturated) = (0usize, 0usize);
+    let scale = InputScale::of(&model.config);
+    let pb = bar(seqs.len(), "calibrating", quiet);
+    for seq in seqs {
+        let mut st = model.new_channel();
+        for &raw in *seq {
+            let x = (raw - scale.offset as f32) / scale.full_scale as f32;
+            if !(-1.0..32767.0 / 32768.0).contains(&x) {
+                saturated += 1;
+            }
+            let v = model.features(&mut st, raw);
+            for (j, &f) in v.iter().enumerate() {
+                fmax[j] = fmax[j].max(f.abs());
+                if f.abs() >= 8.0 {
+                    clipped[j] += 1;
+                }
+            }
+            model.logits(&mut st, &v);
+            for (k, s) in st.lstm.iter().enumerate() {
+                max_c[k] = s.c.iter().fold(max_c[k], |a, c| a.max(c.abs()));
+                max_h[k] = s.h.iter().fold(max_h[k], |a, h| a.max(h.abs()));
+            }
+            steps += 1;
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let bits = (0..n_lstm)
+        .map(|k| match fixed {
+            Some(b) => b[k].clamp(1, 15),
+            None if steps == 0 => DEFAULT_CELL_FRAC_BITS,
+            None => cell_bits_for(max_c[k] * CELL_HEADROOM),
+        })
+        .collect();
+    let share = |n: usize| {
+        if steps == 0 {
+            0.0
+        } else {
+            n as f64 / steps as f64
+        }
+    };
+    Calibration {
+        sequences: seqs.len(),
+        steps,
+        max_abs_cell: max_c,
+        cell_frac_bits: bits,
+        max_abs_hidden: max_h,
+        input_saturated: share(saturated),
+        feature_clipped: clipped.into_iter().map(share).collect(),
+        feature_max_abs: fmax,
+    }
+}
+
+/// Paper metrics of one model on the labelled sequences.
+#[derive(Clone, Debug, Serialize)]
+pub struct PaperMetrics {
+    /// Evaluated steps.
+    pub evaluated_steps: usize,
+    /// Success rate (correct steps / evaluated steps).
+    pub success_rate: Option<f64>,
+    /// Ahead-drop rate (failure sequences flagged before the drop).
+    pub ahead_drop_rate: Option<f64>,
+    /// False-alarm rate (success sequences with any unstable flag).
+    pub false_alarm_rate: Option<f64>,
+    /// Failure sequences with a drop inside the window.
+    pub failure_sequences: usize,
+}
+
+impl From<&Metrics> for PaperMetrics {
+    fn from(m: &Metrics) -> Self {
+        Self {
+            evaluated_steps: m.evaluated_steps,
+            success_rate: m.success_rate,
+            ahead_drop_rate: m.ahead_drop_rate,
+            false_alarm_rate: m.false_alarm_rate,
+            failure_sequences: m.failure_sequences,
+        }
+    }
+}
+
+/// Agreement of the quantized blob with the float model.
+#[derive(Clone, Debug, Serialize)]
+pub struct Agreement {
+    /// Sequences compared.
+    pub sequences: usize,
+    /// Steps compared.
+    pub steps: usize,
+    /// Share of steps whose flag (threshold + hysteresis) is the same.
+    pub flag_agreement: f64,
+    /// Steps whose flags differ.
+    pub flag_disagreements: usize,
+    /// Steps at which the float p, over the hysteresis window ending there, stays at least
+    /// [`DECISIVE_MARGIN`] from the threshold (a flag there does not hinge on rounding).
+    pub decisive_steps: usize,
+    /// Flag agreement over the decisive steps (what `verify` checks).
+    pub decisive_flag_agreement: f64,
+    /// Largest |p_q − p_f|.
+    pub max_abs_dp: f32,
+    /// Mean |p_q − p_f|.
+    pub mean_abs_dp: f32,
+    /// Largest |h_q − h_f| over every hidden unit.
+    pub max_abs_dh: f32,
+    /// Paper metrics of the float model (labelled sequences only).
+    pub float_metrics: Option<PaperMetrics>,
+    /// Paper metrics of the quantized model.
+    pub quant_metrics: Option<PaperMetrics>,
+}
+
+impl Agreement {
+    /// Change in success rate (quantized − float), percentage points.
+    pub fn success_rate_change(&self) -> Option<f64> {
+        Some(
+            100.0
+                * (self.quant_metrics.as_ref()?.success_rate?
+                    - self.float_metrics.as_ref()?.success_rate?),
+        )
+    }
+    /// Change in ahead-drop rate (quantized − float), percentage points.
+    pub fn ahead_drop_change(&self) -> Option<f64> {
+        Some(
+            100.0
+                * (self.quant_metrics.as_ref()?.ahead_drop_rate?
+                    - self.float_metrics.as_ref()?.ahead_drop_rate?),
+        )
+    }
+}
+
+/// Distance of p from the threshold below which a flag difference is a rounding tie.
+pub const DECISIVE_MARGIN: f32 = 0.02;
+
+/// Runs both models over every sequence (from a reset state each) and compares them.
+pub fn agreement(
+    float: &FloatModel,
+    blob: &[u8],
+    seqs: &[ChannelSequence],
+    quiet: bool,
+) -> Result<Agreement> {
+    let aligned = AlignedBlob::new(blob);
+    let model = Model::from_bytes(aligned.as_bytes()).map_err(|e| ExportError::Blob {
+        path: "(exported blob)".into(),
+        source: e,
+    })?;
+    let rate = float.config.sample_rate_hz() as f64;
+    let (mut steps, mut disagree) = (0usize, 0usize);
+    let (mut decisive, mut decisive_disagree) = (0usize, 0usize);
+    let th = float.config.threshold_q15 as f32 / 32768.0;
+    let window = float
+        .config
+        .raise_after
+        .max(float.config.clear_after)
+        .max(1) as usize;
+    let (mut max_dp, mut sum_dp, mut max_dh) = (0f32, 0f64, 0f32);
+    let (mut ev_f, mut ev_q) = (Vec::new(), Vec::new());
+    let pb = bar(seqs.len(), "comparing", quiet);
+    for s in seqs {
+        let mut fs = float.new_channel();
+        let mut qs = ChannelState::new();
+        let (mut pf, mut pq) = (Vec::new(), Vec::new());
+        let mut close_run = usize::MAX; // steps since p was last within the margin
+        for &raw in &s.samples {
+            let f = float.step(&mut fs, raw);
+            let q = model.step(&mut qs, raw.round() as i32);
+            let p = q.p_unstable_q15 as f32 / 32768.0;
+            let dp = (p - f.p_unstable).abs();
+            max_dp = max_dp.max(dp);
+            sum_dp += dp as f64;
+            for (k, l) in float.lstms.iter().enumerate() {
+                for j in 0..l.hidden {
+                    max_dh = max_dh.max((qs.lstm[k].h[j] as f32 / 32768.0 - fs.lstm[k].h[j]).abs());
+                }
+            }
+            if f.unstable != q.unstable {
+                disagree += 1;
+            }
+            close_run = if (f.p_unstable - th).abs() < DECISIVE_MARGIN {
+                0
+            } else {
+                close_run.saturating_add(1)
+            };
+            if close_run >= window {
+                decisive += 1;
+                if f.unstable != q.unstable {
+                    decisive_disagree += 1;
+                }
+            }
+            let st = |u: bool| {
+                if u {
+                    Stability::Unstable
+                } else {
+                    Stability::Stable
+                }
+            };
+            pf.push(st(f.unstable));
+            pq.push(st(q.unstable));
+            steps += 1;
+        }
+        if !s.labels.is_empty() && s.labels.len() == pf.len() {
+            let failure = s.outcome == Outcome::Failure;
+            ev_f.push(EvalSequence::new(
+                &s.labels,
+                &pf,
+                s.drop_index,
+                failure,
+                rate,
+            ));
+            ev_q.push(EvalSequence::new(
+                &s.labels,
+                &pq,
+                s.drop_index,
+                failure,
+                rate,
+            ));
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    if steps == 0 {
+        return Err(ExportError::Data("no steps to compare".into()));
+    }
+    let (fm, qm) = if ev_f.is_empty() {
+        (None, None)
+    } else {
+        let ec = EventConfig::default();
+        (
+            Some(PaperMetrics::from(&evaluate(&ev_f, ec))),
+            Some(PaperMetrics::from(&evaluate(&ev_q, ec))),
+        )
+    };
+    Ok(Agreement {
+        sequences: seqs.len(),
+        steps,
+        flag_agreement: 1.0 - disagree as f64 / steps as f64,
+        flag_disagreements: disagree,
+        decisive_steps: decisive,
+        decisive_flag_agreement: if decisive == 0 {
+            1.0
+        } else {
+            1.0 - decisive_disagree as f64 / decisive as f64
+        },
+        max_abs_dp: max_dp,
+        mean_abs_dp: (sum_dp / steps as f64) as f32,
+        max_abs_dh: max_dh,
+        float_metrics: fm,
+        quant_metrics: qm,
+    })
+}
+
+/// Wraps raw sample sequences (no labels) for [`agreement`].
+pub fn unlabelled(seqs: &[Vec<f32>]) -> Vec<ChannelSequence> {
+    seqs.iter()
+        .enumerate()
+        .map(|(i, s)| ChannelSequence {
+            trial_id: format!("seq{i}"),
+            channel: 0,
+            samples: s.clone(),
+            labels: Vec::new(),
+            drop_index: None,
+            outcome: Outcome::Unknown,
+        })
+        .collect()
+}

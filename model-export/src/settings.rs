@@ -1,0 +1,478 @@
+//! The model's non-tensor settings: variant, d(t) flag, sample rate, input scaling, STFT,
+//! decision, normalisation and name.
+//!
+//! They travel as a string map with the keys below: the safetensors `__metadata__` of our
+//! trainer's checkpoints, a `--settings FILE.json` object for ONNX and Keras models, and the
+//! individual CLI options (`--variant`, `--sample-rate`, …). Later sources override earlier ones:
+//! defaults (the paper's fingertip set-up) < checkpoint metadata < settings file < CLI options.
+
+use std::collections::BTreeMap;
+
+use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
+use slipguard_core::features::stft::{StftConfig, WindowShape};
+
+use crate::error::{ExportError, Result};
+
+/// Every key the exporter understands, with its default and meaning (printed by `--help` and
+/// documented in docs/export.md).
+pub const KEYS: &[(&str, &str, &str)] = &[
+    (
+        "slipguard.format",
+        "1",
+        "settings format version; must be 1 when present",
+    ),
+    (
+        "variant",
+        "data-stft-lstm",
+        "a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm",
+    ),
+    (
+        "force_diff",
+        "false",
+        "true: d(t) = x(t) - x(t-1) is an input after the force",
+    ),
+    (
+        "sample_rate_hz",
+        "16.7",
+        "sample rate the model was trained at, Hz (stored in mHz)",
+    ),
+    ("input_unit", "mN", "mN or counts"),
+    (
+        "input_offset",
+        "0",
+        "raw value mapped to 0.0 (integer, input unit)",
+    ),
+    (
+        "input_full_scale",
+        "10000",
+        "raw span mapped to +1.0 (integer > 0, input unit)",
+    ),
+    (
+        "stft_window",
+        "20",
+        "STFT window N (4..=48); ignored by variant a",
+    ),
+    ("stft_first_bin", "1", "first DFT bin"),
+    (
+        "stft_bins",
+        "10",
+        "number of bins (1..=16, last bin <= N/2)",
+    ),
+    ("stft_shape", "rectangular", "rectangular or hann"),
+    ("threshold", "0.5", "p(unstable) threshold in (0, 1)"),
+    (
+        "raise_after",
+        "1",
+        "steps >= threshold before the flag rises (1..=255)",
+    ),
+    (
+        "clear_after",
+        "1",
+        "steps < threshold before the flag clears (1..=255)",
+    ),
+    (
+        "norm_mean",
+        "",
+        "JSON array: mean of each raw feature [force, d(t), bands...]",
+    ),
+    (
+        "norm_std",
+        "",
+        "JSON array: standard deviation of each raw feature (> 0)",
+    ),
+    (
+        "name",
+        "",
+        "model name, ASCII, at most 12 bytes (default: the input file's stem)",
+    ),
+    (
+        "model_id",
+        "",
+        "u32 (decimal or 0x hex); default: CRC-32 of the float weights",
+    ),
+];
+
+/// Merged settings, as strings, before parsing.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Settings {
+    map: BTreeMap<String, String>,
+    /// Keys nobody understands (reported as warnings).
+    pub unknown: Vec<String>,
+}
+
+/// Parsed settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Resolved {
+    /// Header fields (hidden sizes, cell bits and model id are filled in later).
+    pub config: ModelConfig,
+    /// Normalisation mean, when given.
+    pub norm_mean: Option<Vec<f32>>,
+    /// Normalisation standard deviation, when given.
+    pub norm_std: Option<Vec<f32>>,
+    /// Model id, when given.
+    pub model_id: Option<u32>,
+    /// Whether a name was given.
+    pub named: bool,
+}
+
+impl Settings {
+    /// The paper's defaults.
+    pub fn defaults() -> Self {
+        let mut s = Self::default();
+        for (k, v, _) in KEYS {
+            if !v.is_empty() {
+                s.map.insert((*k).into(), (*v).into());
+            }
+        }
+        s
+    }
+
+    /// Overrides with every entry of `other` (a checkpoint's metadata, a settings file).
+    /// Keys the exporter does not know are remembered for a warning.
+    pub fn merge(&mut self, other: &BTreeMap<String, String>) {
+        for (k, v) in other {
+            if KEYS.iter().any(|(key, _, _)| key == k) {
+                self.map.insert(k.clone(), v.clone());
+            } else if !self.unknown.contains(k) {
+                self.unknown.push(k.clone());
+            }
+        }
+    }
+
+    /// Sets one key (a CLI option).
+    pub fn set(&mut self, key: &str, value: impl Into<String>) {
+        self.map.insert(key.into(), value.into());
+    }
+
+    /// Current value of a key.
+    pub fn get(&self, key: &str) -> Option<&str> {
+        self.map.get(key).map(String::as_str)
+    }
+
+    /// The merged map (for the report and `--write-settings`).
+    pub fn map(&self) -> &BTreeMap<String, String> {
+        &self.map
+    }
+
+    /// Reads a settings JSON file: an object of strings (numbers and booleans are accepted and
+    /// turned into strings; arrays are kept as JSON text).
+    pub fn read_json_file(path: &std::path::Path) -> Result<BTreeMap<String, String>> {
+        let text = std::fs::read_to_string(path).map_err(|e| ExportError::io(path, e))?;
+        let v: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| ExportError::format(path, format!("not JSON: {e}")))?;
+        let obj = v
+            .as_object()
+            .ok_or_else(|| ExportError::format(path, "settings must be a JSON object"))?;
+        Ok(obj
+            .iter()
+            .map(|(k, v)| {
+                let s = match v {
+                    serde_json::Value::String(s) => s.clone(),
+                    other => other.to_string(),
+                };
+                (k.clone(), s)
+            })
+            .collect())
+    }
+
+    fn req(&self, key: &str) -> Result<&str> {
+        self.get(key)
+            .ok_or_else(|| ExportError::settings(key, "missing"))
+    }
+
+    fn parse<T: std::str::FromStr>(&self, key: &str) -> Result<T> {
+        let v = self.req(key)?;
+        v.trim()
+            .parse()
+            .map_err(|_| ExportError::settings(key, format!("cannot parse `{v}`")))
+    }
+
+    fn floats(&self, key: &str) -> Result<Option<Vec<f32>>> {
+        let Some(v) = self.get(key) else {
+            return Ok(None);
+        };
+        let parsed: Vec<f64> = serde_json::from_str(v).map_err(|_| {
+            ExportError::settings(key, format!("expected a JSON array of numbers, got `{v}`"))
+        })?;
+        let out: Vec<f32> = parsed.iter().map(|&x| x as f32).collect();
+        if let Some(i) = out.iter().position(|x| !x.is_finite()) {
+            return Err(ExportError::settings(
+                key,
+                format!("entry {i} is not finite"),
+            ));
+        }
+        Ok(Some(out))
+    }
+
+    /// Parses and checks every setting.
+    pub fn resolve(&self) -> Result<Resolved> {
+        if let Some(f) = self.get("slipguard.format")
+            && f.trim() != "1"
+        {
+            return Err(ExportError::settings(
+                "slipguard.format",
+                format!("format `{f}` is not supported (this exporter reads 1)"),
+            ));
+        }
+        let variant = parse_variant(self.req("variant")?)?;
+        let force_diff = match self.req("force_diff")?.trim() {
+            "true" | "1" | "yes" => true,
+            "false" | "0" | "no" => false,
+            other => {
+                return Err(ExportError::settings(
+                    "force_diff",
+                    format!("`{other}` is not true/false"),
+                ));
+            }
+        };
+        let rate: f64 = self.parse("sample_rate_hz")?;
+        if !(rate > 0.0 && rate < 4.0e6) {
+            return Err(ExportError::settings(
+                "sample_rate_hz",
+                format!("{rate} Hz is out of range"),
+            ));
+        }
+        let input_unit = match self.req("input_unit")?.trim() {
+            "mN" | "mn" | "millinewton" => InputUnit::MilliNewton,
+            "counts" | "count" => InputUnit::Counts,
+            other => {
+                return Err(ExportError::settings(
+                    "input_unit",
+                    format!("`{other}` is not mN or counts"),
+                ));
+            }
+        };
+        let input_offset: i32 = self.parse("input_offset")?;
+        let input_full_scale: i32 = self.parse("input_full_scale")?;
+        if input_full_scale <= 0 {
+            return Err(ExportError::settings("input_full_scale", "must be > 0"));
+        }
+        let stft = if variant.uses_bands() {
+            let shape = match self.req("stft_shape")?.trim() {
+                "rectangular" | "rect" => WindowShape::Rectangular,
+                "hann" => WindowShape::Hann,
+                other => {
+                    return Err(ExportError::settings(
+                        "stft_shape",
+                        format!("`{other}` is not rectangular or hann"),
+                    ));
+                }
+            };
+            let s = StftConfig {
+                window_len: self.parse("stft_window")?,
+                first_bin: self.parse("stft_first_bin")?,
+                n_bins: self.parse("stft_bins")?,
+                shape,
+            };
+            s.validate().map_err(|e| {
+                ExportError::settings("stft_window/stft_first_bin/stft_bins", e.to_string())
+            })?;
+            s
+        } else {
+            StftConfig {
+                window_len: 0,
+                first_bin: 0,
+                n_bins: 0,
+                shape: WindowShape::Rectangular,
+            }
+        };
+        let threshold: f64 = self.parse("threshold")?;
+        if !(threshold > 0.0 && threshold < 1.0) {
+            return Err(ExportError::settings(
+                "threshold",
+                format!("{threshold} is not in (0, 1)"),
+            ));
+        }
+        let raise_after: u8 = self.parse("raise_after")?;
+        let clear_after: u8 = self.parse("clear_after")?;
+        if raise_after == 0 || clear_after == 0 {
+            return Err(ExportError::settings(
+                "raise_after/clear_after",
+                "must be >= 1",
+            ));
+        }
+        let mut name = [0u8; 12];
+        let named = match self.get("name") {
+            Some(n) if !n.is_empty() => {
+                if !n.is_ascii() || n.len() > 12 {
+                    return Err(ExportError::settings(
+                        "name",
+                        format!("`{n}` is not ASCII of at most 12 bytes"),
+                    ));
+                }
+                name[..n.len()].copy_from_slice(n.as_bytes());
+                true
+            }
+            _ => false,
+        };
+        let model_id = match self.get("model_id") {
+            Some(v) if !v.is_empty() => {
+                let v = v.trim();
+                let parsed = match v.strip_prefix("0x") {
+                    Some(h) => u32::from_str_radix(h, 16).ok(),
+                    None => v.parse().ok(),
+                };
+                Some(parsed.ok_or_else(|| {
+                    ExportError::settings("model_id", format!("`{v}` is not a u32"))
+                })?)
+            }
+            _ => None,
+        };
+        let config = ModelConfig {
+            model_id: model_id.unwrap_or(0),
+            name,
+            variant,
+            force_diff,
+            sample_rate_mhz: (rate * 1000.0).round() as u32,
+            input_unit,
+            input_offset,
+            input_full_scale,
+            stft,
+            hidden: [0, 0],
+            cell_frac_bits: [0, 0],
+            threshold_q15: (threshold * 32768.0).round().clamp(1.0, 32767.0) as u16,
+            raise_after,
+            clear_after,
+        };
+        Ok(Resolved {
+            config,
+            norm_mean: self.floats("norm_mean")?,
+            norm_std: self.floats("norm_std")?,
+            model_id,
+            named,
+        })
+    }
+}
+
+/// Parses a variant by letter (paper Fig. 5) or name.
+pub fn parse_variant(v: &str) -> Result<Variant> {
+    Ok(match v.trim() {
+        "a" | "(a)" | "lstm" | "force" => Variant::Force,
+        "b" | "(b)" | "stft-lstm" | "stft" => Variant::Stft,
+        "c" | "(c)" | "data-stft-lstm" | "force-stft" => Variant::ForceStft,
+        "d" | "(d)" | "lstm-stft-lstm" | "dual" => Variant::DualLstm,
+        other => {
+            return Err(ExportError::settings(
+                "variant",
+                format!(
+                    "`{other}` is not one of a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm"
+                ),
+            ));
+        }
+    })
+}
+
+/// Writes a config back into settings strings (for the report and round trips).
+pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
+    let mut m = BTreeMap::new();
+    m.insert("variant".into(), config.variant.name().into());
+    m.insert("force_diff".into(), config.force_diff.to_string());
+    m.insert(
+        "sample_rate_hz".into(),
+        format!("{}", config.sample_rate_mhz as f64 / 1000.0),
+    );
+    m.insert(
+        "input_unit".into(),
+        match config.input_unit {
+            InputUnit::MilliNewton => "mN",
+            InputUnit::Counts => "counts",
+        }
+        .into(),
+    );
+    m.insert("input_offset".into(), config.input_offset.to_string());
+    m.insert(
+        "input_full_scale".into(),
+        config.input_full_scale.to_string(),
+    );
+    if config.variant.uses_bands() {
+        m.insert("stft_window".into(), config.stft.window_len.to_string());
+        m.insert("stft_first_bin".into(), config.stft.first_bin.to_string());
+        m.insert("stft_bins".into(), config.stft.n_bins.to_string());
+        m.insert(
+            "stft_shape".into(),
+            match config.stft.shape {
+                WindowShape::Rectangular => "rectangular",
+                WindowShape::Hann => "hann",
+            }
+            .into(),
+        );
+    }
+    m.insert(
+        "threshold".into(),
+        format!("{}", config.threshold_q15 as f64 / 32768.0),
+    );
+    m.insert("raise_after".into(), config.raise_after.to_string());
+    m.insert("clear_after".into(), config.clear_after.to_string());
+    m.insert("name".into(), config.name_str().into());
+    m.insert("model_id".into(), format!("{:#010x}", config.model_id));
+    m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_paper_fingertip_setup() {
+        let r = Settings::defaults().resolve().unwrap();
+        let c = r.config;
+        assert_eq!(c.variant, Variant::ForceStft);
+        assert_eq!(c.sample_rate_mhz, 16_700);
+        assert_eq!((c.input_offset, c.input_full_scale), (0, 10_000));
+        assert_eq!(c.stft, StftConfig::PAPER);
+        assert_eq!(c.threshold_q15, 16_384);
+        assert!(!c.force_diff && r.norm_mean.is_none());
+    }
+
+    #[test]
+    fn describe_round_trips_through_resolve() {
+        let mut s = Settings::defaults();
+        s.set("variant", "d");
+        s.set("force_diff", "true");
+        s.set("stft_shape", "hann");
+        s.set("threshold", "0.625");
+        s.set("name", "rt");
+        let c = s.resolve().unwrap().config;
+        let mut back = Settings::defaults();
+        back.merge(&describe(&c));
+        let mut c2 = back.resolve().unwrap().config;
+        c2.model_id = c.model_id;
+        assert_eq!(c, c2);
+    }
+
+    #[test]
+    fn later_sources_win_and_unknown_keys_are_kept_for_a_warning() {
+        let mut s = Settings::defaults();
+        let file: BTreeMap<String, String> = [
+            ("variant".to_string(), "a".to_string()),
+            ("lr".to_string(), "0.0006".to_string()),
+        ]
+        .into();
+        s.merge(&file);
+        s.set("variant", "b");
+        assert_eq!(s.resolve().unwrap().config.variant, Variant::Stft);
+        assert_eq!(s.unknown, vec!["lr".to_string()]);
+    }
+
+    #[test]
+    fn each_bad_value_names_its_key() {
+        for (k, v) in [
+            ("variant", "x"),
+            ("threshold", "0"),
+            ("input_full_scale", "-3"),
+            ("stft_window", "2"),
+            ("raise_after", "0"),
+            ("norm_mean", "[1, \"a\"]"),
+            ("slipguard.format", "2"),
+        ] {
+            let mut s = Settings::defaults();
+            s.set(k, v);
+            match s.resolve() {
+                Err(ExportError::Settings { key, .. }) => {
+                    assert!(key.contains(k.split('_').next().unwrap_or(k)), "{k}: {key}")
+                }
+                other => panic!("{k}={v}: {other:?}"),
+            }
+        }
+    }
+}

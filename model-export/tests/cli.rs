@@ -1,0 +1,709 @@
+//! The binary: every kind of malformed or unsupported input gets its own error and exit code,
+//! failed exports leave no file behind, and the outputs (blob, report, snippet) are right.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
+}
+
+fn tmp(test: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("slipguard-export-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+fn data_dir() -> PathBuf {
+    slipguard_host::eagle::default_data_dir()
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_slipguard-export"))
+        .args(args)
+        .output()
+        .expect("run binary")
+}
+
+/// Runs, expects exit `code` and `needle` in stderr; returns stderr.
+fn expect_fail(args: &[&str], code: i32, needle: &str) -> String {
+    let out = run(args);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(code), "args {args:?}: stderr {err}");
+    assert!(
+        err.contains(needle),
+        "args {args:?}: expected `{needle}` in: {err}"
+    );
+    println!("exit {code}: {}", err.lines().next().unwrap_or(""));
+    err
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// (name, dtype, shape, bytes) of one tensor.
+type Tensor = (String, Dtype, Vec<usize>, Vec<u8>);
+
+/// Tensors of a safetensors file as (name, dtype, shape, bytes), and its metadata.
+fn read_st(path: &Path) -> (Vec<Tensor>, HashMap<String, String>) {
+    let bytes = std::fs::read(path).expect("read");
+    let st = SafeTensors::deserialize(&bytes).expect("parse");
+    let (_, meta) = SafeTensors::read_metadata(&bytes).expect("meta");
+    let mut v: Vec<_> = st
+        .tensors()
+        .into_iter()
+        .map(|(n, t)| (n, t.dtype(), t.shape().to_vec(), t.data().to_vec()))
+        .collect();
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    (v, meta.metadata().clone().unwrap_or_default())
+}
+
+fn write_st(path: &Path, tensors: &[Tensor], meta: &HashMap<String, String>) {
+    let views: Vec<(String, TensorView<'_>)> = tensors
+        .iter()
+        .map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).expect("view")))
+        .collect();
+    let bytes = safetensors::serialize(views, Some(meta.clone())).expect("serialize");
+    std::fs::write(path, bytes).expect("write");
+}
+
+fn f32_bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+fn truncated(src: &str, dir: &Path, frac: f64) -> PathBuf {
+    let b = std::fs::read(fixture(src)).expect("read");
+    let p = dir.join(src);
+    std::fs::write(&p, &b[..(b.len() as f64 * frac) as usize]).expect("write");
+    p
+}
+
+#[test]
+fn truncated_files_exit_4() {
+    let d = tmp("trunc");
+    let out = d.join("m.bin");
+    for (src, frac, needle) in [
+        ("torch_c.safetensors", 0.5, "not a valid safetensors"),
+        ("onnx_d_legacy.onnx", 0.5, "not a valid ONNX"),
+        ("keras_c.keras", 0.6, "not a readable .keras"),
+        ("keras_c.weights.h5", 0.5, ""),
+    ] {
+        let p = truncated(src, &d, frac);
+        expect_fail(
+            &[
+                "export",
+                s(&p),
+                "--settings",
+                s(&fixture("keras_c.settings.json")),
+                "-o",
+                s(&out),
+                "-q",
+            ],
+            4,
+            needle,
+        );
+        assert!(!out.exists(), "a failed export must not leave a blob");
+    }
+    // ONNX external data cut short.
+    std::fs::copy(fixture("onnx_c.onnx"), d.join("onnx_c.onnx")).unwrap();
+    let data = std::fs::read(fixture("onnx_c.onnx.data")).unwrap();
+    std::fs::write(d.join("onnx_c.onnx.data"), &data[..data.len() / 2]).unwrap();
+    expect_fail(
+        &[
+            "export",
+            s(&d.join("onnx_c.onnx")),
+            "--settings",
+            s(&fixture("onnx_c.settings.json")),
+            "-o",
+            s(&out),
+            "-q",
+        ],
+        4,
+        "past the end",
+    );
+}
+
+#[test]
+fn missing_or_misnamed_tensors_exit_5() {
+    let d = tmp("names");
+    let (t, meta) = read_st(&fixture("torch_c.safetensors"));
+    let renamed: Vec<_> = t
+        .iter()
+        .map(|(n, dt, sh, b)| {
+            (
+                n.replace("weight_ih_l0", "w_ih"),
+                *dt,
+                sh.clone(),
+                b.clone(),
+            )
+        })
+        .collect();
+    let p = d.join("renamed.safetensors");
+    write_st(&p, &renamed, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&d.join("m.bin"))],
+        5,
+        "lstm.weight_ih_l0",
+    );
+    let no_hh: Vec<_> = t
+        .iter()
+        .filter(|x| x.0 != "lstm.weight_hh_l0")
+        .cloned()
+        .collect();
+    write_st(&p, &no_hh, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&d.join("m.bin"))],
+        5,
+        "`lstm.weight_hh_l0`",
+    );
+    let no_dense: Vec<_> = t
+        .iter()
+        .filter(|x| !x.0.starts_with("dense"))
+        .cloned()
+        .collect();
+    write_st(&p, &no_dense, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&d.join("m.bin"))],
+        5,
+        "dense.weight",
+    );
+    // A dual checkpoint declared as such but holding one LSTM.
+    expect_fail(
+        &[
+            "export",
+            s(&fixture("torch_c.safetensors")),
+            "--variant",
+            "d",
+            "-o",
+            s(&d.join("m.bin")),
+        ],
+        5,
+        "needs 2 LSTMs",
+    );
+}
+
+#[test]
+fn wrong_shapes_exit_6() {
+    let d = tmp("shapes");
+    let out = d.join("m.bin");
+    // Variant (a) has 2 inputs (force, d(t)); the checkpoint's LSTM takes 12.
+    expect_fail(
+        &[
+            "export",
+            s(&fixture("torch_c.safetensors")),
+            "--variant",
+            "a",
+            "-o",
+            s(&out),
+        ],
+        6,
+        "`lstm.weight_ih_l0` has shape [64, 12], expected [64, 2]",
+    );
+    // Keras model exported for 11 features but declared with d(t).
+    expect_fail(
+        &[
+            "export",
+            s(&fixture("keras_c.keras")),
+            "--settings",
+            s(&fixture("keras_c.settings.json")),
+            "--force-diff",
+            "true",
+            "-o",
+            s(&out),
+        ],
+        6,
+        "layers/lstm/cell/vars/0 (kernel)",
+    );
+    let (mut t, meta) = read_st(&fixture("torch_c.safetensors"));
+    for x in t.iter_mut() {
+        if x.0 == "dense.weight" {
+            x.2 = vec![3, 16];
+            x.3 = f32_bytes(&[0.1; 48]);
+        }
+        if x.0 == "dense.bias" {
+            x.2 = vec![3];
+            x.3 = f32_bytes(&[0.0; 3]);
+        }
+    }
+    let p = d.join("dense3.safetensors");
+    write_st(&p, &t, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&out)],
+        6,
+        "`dense.weight` has shape [3, 16], expected [2, 16]",
+    );
+    let (mut t, meta) = read_st(&fixture("torch_c.safetensors"));
+    for x in t.iter_mut() {
+        if x.0 == "lstm.bias_hh_l0" {
+            x.2 = vec![60];
+            x.3.truncate(240);
+        }
+    }
+    write_st(&p, &t, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&out)],
+        6,
+        "`lstm.bias_hh_l0` has shape [60], expected [64]",
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn nan_and_inf_weights_exit_7() {
+    let d = tmp("nan");
+    let (t, meta) = read_st(&fixture("torch_c.safetensors"));
+    for (name, idx, val) in [
+        ("lstm.weight_hh_l0", 37usize, f32::NAN),
+        ("dense.bias", 1, f32::INFINITY),
+    ] {
+        let mut t2 = t.clone();
+        for x in t2.iter_mut() {
+            if x.0 == name {
+                x.3[idx * 4..idx * 4 + 4].copy_from_slice(&val.to_le_bytes());
+            }
+        }
+        let p = d.join("nan.safetensors");
+        write_st(&p, &t2, &meta);
+        expect_fail(
+            &["export", s(&p), "-o", s(&d.join("m.bin"))],
+            7,
+            &format!("`{name}` has a NaN or infinite value at flat index {idx}"),
+        );
+    }
+}
+
+#[test]
+fn constructs_the_firmware_cannot_run_exit_8() {
+    let d = tmp("unsupported");
+    let out = d.join("m.bin");
+    let ks = fixture("keras_c.settings.json");
+    let os = fixture("onnx_c.settings.json");
+    let cases: Vec<(PathBuf, Option<&PathBuf>, &str)> = vec![
+        (
+            fixture("bad_bidirectional.safetensors"),
+            None,
+            "bidirectional",
+        ),
+        (fixture("bad_proj.safetensors"), None, "projection"),
+        (fixture("bad_two_layers.safetensors"), None, "stacked LSTM"),
+        (
+            fixture("bad_bidirectional.onnx"),
+            Some(&os),
+            "direction=bidirectional",
+        ),
+        (fixture("bad_two_layers.onnx"), Some(&os), "stacked LSTMs"),
+        (fixture("bad_peephole.onnx"), Some(&os), "peephole"),
+        (fixture("bad_clip.onnx"), Some(&os), "attribute clip"),
+        (fixture("bad_hard_sigmoid.onnx"), Some(&os), "HardSigmoid"),
+        (
+            fixture("bad_hard_sigmoid.keras"),
+            Some(&ks),
+            "recurrent_activation=hard_sigmoid",
+        ),
+        (
+            fixture("bad_bidirectional.keras"),
+            Some(&ks),
+            "Bidirectional",
+        ),
+    ];
+    for (model, settings, needle) in cases {
+        let mut args = vec!["export", s(&model), "-o", s(&out)];
+        if let Some(st) = settings {
+            args.extend(["--settings", s(st)]);
+        }
+        expect_fail(&args, 8, needle);
+    }
+    // The dual checkpoint declared as a single-LSTM variant.
+    expect_fail(
+        &[
+            "export",
+            s(&fixture("torch_d.safetensors")),
+            "--variant",
+            "c",
+            "-o",
+            s(&out),
+        ],
+        8,
+        "has 2 LSTMs but variant data-stft-lstm has 1",
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn hidden_over_128_exit_9() {
+    let d = tmp("hidden");
+    let (_, meta) = read_st(&fixture("torch_c.safetensors"));
+    let h = 129;
+    let t = vec![
+        (
+            "lstm.weight_ih_l0".to_string(),
+            Dtype::F32,
+            vec![4 * h, 12],
+            f32_bytes(&vec![0.01; 4 * h * 12]),
+        ),
+        (
+            "lstm.weight_hh_l0".to_string(),
+            Dtype::F32,
+            vec![4 * h, h],
+            f32_bytes(&vec![0.01; 4 * h * h]),
+        ),
+        (
+            "lstm.bias_ih_l0".to_string(),
+            Dtype::F32,
+            vec![4 * h],
+            f32_bytes(&vec![0.0; 4 * h]),
+        ),
+        (
+            "lstm.bias_hh_l0".to_string(),
+            Dtype::F32,
+            vec![4 * h],
+            f32_bytes(&vec![0.0; 4 * h]),
+        ),
+        (
+            "dense.weight".to_string(),
+            Dtype::F32,
+            vec![2, h],
+            f32_bytes(&vec![0.01; 2 * h]),
+        ),
+        (
+            "dense.bias".to_string(),
+            Dtype::F32,
+            vec![2],
+            f32_bytes(&[0.0; 2]),
+        ),
+    ];
+    let p = d.join("h129.safetensors");
+    write_st(&p, &t, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&d.join("m.bin"))],
+        9,
+        "hidden size 129 is outside the firmware's static bound 1..=128",
+    );
+}
+
+#[test]
+fn bad_settings_exit_10_and_usage_2() {
+    let d = tmp("settings");
+    let out = d.join("m.bin");
+    let m = fixture("torch_c.safetensors");
+    expect_fail(
+        &["export", s(&m), "--threshold", "1.5", "-o", s(&out)],
+        10,
+        "setting `threshold`",
+    );
+    expect_fail(
+        &["export", s(&m), "--variant", "e", "-o", s(&out)],
+        10,
+        "setting `variant`",
+    );
+    expect_fail(
+        &["export", s(&m), "--stft-bins", "40", "-o", s(&out)],
+        10,
+        "stft",
+    );
+    expect_fail(
+        &[
+            "export",
+            s(&m),
+            "--name",
+            "a-name-longer-than-12",
+            "-o",
+            s(&out),
+        ],
+        10,
+        "setting `name`",
+    );
+    // ONNX carries no settings: without a normalisation it is refused, naming the key.
+    expect_fail(
+        &["export", s(&fixture("onnx_c.onnx")), "-o", s(&out)],
+        10,
+        "setting `norm_mean`",
+    );
+    expect_fail(
+        &[
+            "export",
+            s(&m),
+            "--norm-mean",
+            "[0.5]",
+            "--norm-std",
+            "[1]",
+            "-o",
+            s(&out),
+        ],
+        10,
+        "has 1 entries",
+    );
+    expect_fail(
+        &["export", s(&m), "--cell-bits", "16", "-o", s(&out)],
+        2,
+        "--cell-bits",
+    );
+    expect_fail(&["export", s(&m), "--no-such-option"], 2, "");
+    expect_fail(
+        &["export", s(&d.join("missing.safetensors")), "-o", s(&out)],
+        3,
+        "missing.safetensors",
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn data_errors_exit_11() {
+    let d = tmp("data");
+    expect_fail(
+        &[
+            "export",
+            s(&fixture("torch_c.safetensors")),
+            "--data",
+            s(&d.join("no-such-dir")),
+            "-o",
+            s(&d.join("m.bin")),
+            "-q",
+        ],
+        11,
+        "no-such-dir",
+    );
+    assert!(!d.join("m.bin").exists());
+}
+
+#[test]
+fn export_inspect_verify_end_to_end() {
+    let d = tmp("e2e");
+    let out = d.join("model.bin");
+    let snippet = d.join("model_blob.rs");
+    let data = data_dir();
+    let o = run(&[
+        "export",
+        s(&fixture("torch_c.safetensors")),
+        "--data",
+        s(&data),
+        "--max-trials",
+        "6",
+        "-o",
+        s(&out),
+        "--rust-snippet",
+        s(&snippet),
+        "-q",
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    println!("{stdout}");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("flag agreement"));
+    let blob = std::fs::read(&out).unwrap();
+    let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
+    let parsed = aligned.parse().expect("the written blob parses");
+    assert_eq!(parsed.config.name_str(), "torch-c");
+    assert_eq!(
+        parsed.config.threshold_q15,
+        (0.55f64 * 32768.0).round() as u16
+    );
+    assert_eq!(parsed.config.raise_after, 2);
+    assert!(parsed.config.force_diff);
+    // Reports.
+    let md = std::fs::read_to_string(d.join("model.bin.report.md")).unwrap();
+    assert!(
+        md.contains("## Quantization error per tensor")
+            && md.contains("lstm0.weight_hh_l0")
+            && md.contains("success rate")
+    );
+    let js: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("model.bin.report.json")).unwrap())
+            .unwrap();
+    assert!(js["agreement"]["flag_agreement"].as_f64().unwrap() > 0.98);
+    assert!(js["agreement"]["float_metrics"]["success_rate"].is_number());
+    assert_eq!(js["blob"]["crc"].as_u64().unwrap() as u32, parsed.crc);
+    // Snippet.
+    let rs = std::fs::read_to_string(&snippet).unwrap();
+    assert!(
+        rs.contains("#[unsafe(link_section = \".model\")]")
+            && rs.contains(&format!("pub const MODEL_LEN: usize = {};", blob.len()))
+    );
+    assert!(rs.contains(&format!("{:#010x}", parsed.crc)));
+    // No temporary files left.
+    let left: Vec<_> = std::fs::read_dir(&d)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.contains(".tmp-"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+
+    // inspect
+    let o = run(&["inspect", s(&out)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    println!("{text}");
+    assert!(o.status.success());
+    for needle in [
+        "variant            data-stft-lstm",
+        "MACs per step:     1824 (LSTM + dense) + 400 (STFT)",
+        &format!("CRC-32:            {:#010x}", parsed.crc),
+        "flash:             ",
+        "RAM per channel:",
+    ] {
+        assert!(text.contains(needle), "inspect output lacks `{needle}`");
+    }
+    let o = run(&["inspect", s(&out), "--json"]);
+    let js: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(js["total_bytes"].as_u64().unwrap() as usize, blob.len());
+
+    // verify passes, and fails (13) with an impossible bound.
+    let o = run(&[
+        "verify",
+        s(&out),
+        "--float",
+        s(&fixture("torch_c.safetensors")),
+        "--data",
+        s(&data),
+        "--max-trials",
+        "6",
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("verify: OK"));
+    expect_fail(
+        &[
+            "verify",
+            s(&out),
+            "--float",
+            s(&fixture("torch_c.safetensors")),
+            "--data",
+            s(&data),
+            "--max-trials",
+            "6",
+            "--max-dp",
+            "0",
+            "-q",
+        ],
+        13,
+        "verification failed",
+    );
+    // verify against the wrong checkpoint.
+    expect_fail(
+        &[
+            "verify",
+            s(&out),
+            "--float",
+            s(&fixture("torch_d.safetensors")),
+            "--data",
+            s(&data),
+            "--max-trials",
+            "2",
+            "-q",
+        ],
+        8,
+        "variant data-stft-lstm has 1",
+    );
+
+    // A failed export over an existing blob leaves it untouched.
+    let before = std::fs::read(&out).unwrap();
+    expect_fail(
+        &["export", s(&fixture("bad_proj.safetensors")), "-o", s(&out)],
+        8,
+        "projection",
+    );
+    assert_eq!(std::fs::read(&out).unwrap(), before);
+
+    // Damaged blobs.
+    let mut bad = before.clone();
+    bad[100] ^= 0x40;
+    let p = d.join("corrupt.bin");
+    std::fs::write(&p, &bad).unwrap();
+    expect_fail(&["inspect", s(&p)], 12, "CRC mismatch");
+    std::fs::write(&p, &before[..before.len() - 10]).unwrap();
+    expect_fail(&["inspect", s(&p)], 12, "truncated");
+}
+
+#[test]
+fn every_format_exports_from_the_cli() {
+    let d = tmp("formats");
+    for (m, settings) in [
+        ("torch_d.safetensors", None),
+        ("torch_a_prefixed.safetensors", None),
+        ("onnx_c.onnx", Some("onnx_c.settings.json")),
+        ("onnx_d_legacy.onnx", Some("onnx_d_legacy.settings.json")),
+        ("keras_c.keras", Some("keras_c.settings.json")),
+        ("keras_c.weights.h5", Some("keras_c.settings.json")),
+        ("keras_d.keras", Some("keras_d.settings.json")),
+    ] {
+        let out = d.join(format!("{m}.bin"));
+        let mut args = vec![
+            "export".to_string(),
+            s(&fixture(m)).to_string(),
+            "-o".into(),
+            s(&out).to_string(),
+            "--no-report".into(),
+            "-q".into(),
+        ];
+        if let Some(st) = settings {
+            args.extend(["--settings".into(), s(&fixture(st)).to_string()]);
+        }
+        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = run(&refs);
+        assert!(
+            o.status.success(),
+            "{m}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let b = std::fs::read(&out).unwrap();
+        assert!(
+            slipguard_core::blob::AlignedBlob::new(&b).parse().is_ok(),
+            "{m}"
+        );
+    }
+    // The .weights.h5 and the .keras archive of the same model give the same blob.
+    assert_eq!(
+        std::fs::read(d.join("keras_c.keras.bin")).unwrap(),
+        std::fs::read(d.join("keras_c.weights.h5.bin")).unwrap()
+    );
+    // Options override the file's settings; norm fitted on data for a model without one.
+    let out = d.join("fit.bin");
+    let o = run(&[
+        "export",
+        s(&fixture("onnx_c.onnx")),
+        "--fit-norm",
+        "--data",
+        s(&data_dir()),
+        "--max-trials",
+        "3",
+        "--threshold",
+        "0.7",
+        "--name",
+        "fitted",
+        "-o",
+        s(&out),
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let b = std::fs::read(&out).unwrap();
+    let a = slipguard_core::blob::AlignedBlob::new(&b);
+    let p = a.parse().unwrap();
+    assert_eq!(p.config.name_str(), "fitted");
+    assert_eq!(p.config.threshold_q15, 22938);
+}
+
+#[test]
+fn help_has_an_example_per_input_format() {
+    for args in [&["--help"][..], &["export", "--help"][..]] {
+        let o = run(args);
+        assert!(o.status.success());
+        let h = String::from_utf8_lossy(&o.stdout);
+        for needle in [
+            ".safetensors",
+            ".onnx",
+            ".keras ",
+            ".weights.h5",
+            "inspect model.bin",
+            "verify model.bin",
+            "Exit codes",
+        ] {
+            assert!(h.contains(needle), "{args:?} help lacks `{needle}`");
+        }
+    }
+}
