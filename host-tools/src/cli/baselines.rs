@@ -46,7 +46,12 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "both")]
     pub features: Features,
     /// Models, comma separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "stable,nb,knn,svm")]
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "stable,nb,knn,svm"
+    )]
     pub models: Vec<Model>,
     /// Folds by trial; 0 = leave one trial out.
     #[arg(long, default_value_t = 0)]
@@ -270,7 +275,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "16-channel", "LSTM", "-", "-", lstm.success_rate_pct, lstm.ahead_drop_pct
     );
     println!();
-    println!("held-out trials per fold (a fold's trials are predicted by a model trained on all other trials):");
+    println!(
+        "held-out trials per fold (a fold's trials are predicted by a model trained on all other trials):"
+    );
     for (i, f) in folds.iter().enumerate() {
         println!("  fold {:>2}: {}", i + 1, f.join(", "));
     }
