@@ -20,7 +20,8 @@
 //! Classifier settings follow scikit-learn's defaults, which the paper's reference used:
 //! GaussianNB with `var_smoothing` 1e-9; KNN k = 3, uniform majority vote, Euclidean distance
 //! (linfa-nn k-d tree); SVC with C = 1, RBF kernel, γ = 1 / n_features on standardised
-//! features ("scale"), tolerance 1e-3. The SVM's kernel matrix is dense, so its training set
+//! features ("scale"), tolerance 1e-3, no shrinking (linfa-svm 0.8.1's shrinking heuristic
+//! panics with an index of −1 on the 16-channel folds). The SVM's kernel matrix is dense, so its training set
 //! is cut to at most `max_train` evenly spaced steps (a fixed stride, no sampling).
 
 use std::fmt;
@@ -439,7 +440,7 @@ pub fn fit(classifier: &Classifier, x: Array2<f64>, y: &[bool]) -> Result<Fitted
                 .pos_neg_weights(s.c, s.c)
                 .gaussian_kernel(1.0 / gamma)
                 .eps(s.tol)
-                .shrinking(true)
+                .shrinking(false)
                 .fit(&ds)
                 .map_err(|e| err(&e))?;
             Ok(Fitted::Svm(m))
