@@ -4,6 +4,7 @@
 //! Every tool reads one [`trial::Trial`]. Library errors are
 //! [`error::DataError`]; the `slipguard` binary adds `anyhow` at its edge.
 
+pub mod baselines;
 pub mod dsp;
 pub mod eagle;
 pub mod error;

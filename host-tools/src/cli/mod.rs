@@ -2,6 +2,7 @@
 //! To add a subcommand (`train`, `eval`, `replay`, `monitor`): add a module with
 //! an `Args` struct and `run(args) -> anyhow::Result<()>`, and one variant below.
 
+mod baselines;
 mod dataset;
 mod label;
 mod progress;
@@ -28,6 +29,8 @@ pub enum Command {
     Label(label::Args),
     /// Simulate force or suction trials, or validate the simulator against real data.
     Simulate(simulate::Args),
+    /// The paper's Table I baselines (NB, KNN, SVM), cross-validated by trial.
+    Baselines(baselines::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -35,6 +38,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Label(a) => label::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Baselines(a) => baselines::run(a),
     }
 }
 
