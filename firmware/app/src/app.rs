@@ -269,6 +269,20 @@ impl<'m> App<'m> {
         })
     }
 
+    /// A fault frame saying the sensors stopped delivering frames (`periods` model periods
+    /// without one); the board layer sends it while it waits.
+    pub fn stall_frame(&mut self, periods: u32) -> Frame {
+        Frame {
+            seq: self.next_seq(),
+            msg: Message::Fault(Fault {
+                timestamp_us: 0,
+                code: fault_code::SENSOR_STALL,
+                detail: 0,
+                value: periods,
+            }),
+        }
+    }
+
     /// [`Self::infer`] then [`Self::emit`].
     pub fn frame(&mut self, input: &FrameInput, late: bool) -> Option<Frame> {
         let r = self.infer(input);
