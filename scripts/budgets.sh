@@ -26,7 +26,7 @@ work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 
 echo "== firmware release ELF: $elf"
-arm-none-eabi-size -A "$elf" | awk '$2 ~ /^[0-9]+$/ && $2 > 0 && $1 !~ /^\.(debug|comment|ARM|defmt|symtab|strtab)/'
+arm-none-eabi-size -A "$elf" | awk '$2 ~ /^[0-9]+$/ && $2 > 0 && $1 !~ /^\.(debug|comment|ARM|defmt|symtab|strtab)/ && $1 != "Total"'
 read -r flash model ram < <(arm-none-eabi-size -A "$elf" | awk '
   $1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" || $1 == ".data" { f += $2 }
   $1 == ".model" { m += $2 }
