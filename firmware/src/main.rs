@@ -169,6 +169,8 @@ fn start_scan_timer(tim: Peri<'static, TIM2>, rate_mhz: u32) -> LlTimer<'static,
 #[embassy_executor::task]
 async fn adc_task(mut rb: RingBufferedAdc<'static, ADC1>, mut frontend: Frontend) {
     let mut half = [0u16; HALF];
+    // After an overrun the ring drops partial scans, so channel 0 stays at the start of a scan.
+    rb.set_alignment(CHANNELS);
     rb.start();
     loop {
         match rb.read(&mut half).await {
@@ -179,10 +181,10 @@ async fn adc_task(mut rb: RingBufferedAdc<'static, ADC1>, mut frontend: Frontend
                 }
             }),
             Err(_) => {
-                // Samples were lost: a frame's worth at least. Count it and restart the DMA.
+                // Samples were lost (the task fell a whole half-buffer behind): a frame's worth
+                // at least. Count it; the ring resynchronises on whole scans by itself.
                 SKIPPED.fetch_add(1, Ordering::Relaxed);
                 warn!("ADC DMA overrun: frame skipped");
-                rb.start();
             }
         }
     }
@@ -339,6 +341,7 @@ async fn main(spawner: Spawner) {
     let stall_after = Duration::from_micros(3 * deadline.period_us as u64);
     let mut deframer = Deframer::new();
     let mut skipped_seen = 0u32;
+    let mut last_fault = 0u16;
     let (mut cyc_min, mut cyc_max, mut cyc_sum, mut cyc_n) = (u32::MAX, 0u32, 0u64, 0u32);
     let report_every = (rate_mhz / 100).max(1); // every 10 s
     loop {
@@ -390,8 +393,14 @@ async fn main(spawner: Spawner) {
                 } else {
                     unstable_pin.set_low();
                 }
-                if input.fault != 0 {
-                    debug!("frame {}: fault mask {:#06x}", input.index, input.fault);
+                if input.fault != last_fault {
+                    warn!(
+                        "frame {}: sensor fault mask {:#06x} (kinds per channel, 1 open 2 saturated 4 stuck: {})",
+                        input.index,
+                        input.fault,
+                        input.kinds[..CHANNELS]
+                    );
+                    last_fault = input.fault;
                 }
                 wdg.pet();
                 led.toggle();
