@@ -32,6 +32,7 @@ fn main() -> std::io::Result<()> {
         blob.as_bytes(),
         &CHEEZ_TRIAL,
         cheez_script::SCRIPT,
+        cheez_script::OPEN_WIRES,
         |b| out.extend_from_slice(b),
     );
     std::io::stdout().write_all(&out)?;

@@ -52,19 +52,38 @@ impl<'a> Trial<'a> {
 pub const CHEEZ_TRIAL: Trial<'static> =
     Trial::new(include_bytes!("../fixtures/Cheez_100_814_top_3.bin"), 16);
 
-/// Turns model-rate trial values into ADC scans (see the module docs).
-#[derive(Clone, Debug)]
-pub struct EmulatedSensor {
-    profile: Profile,
-    rng: u32,
+/// An injected open wire: `channel` reads code 0 during trial steps `from_step..to_step`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OpenWire {
+    /// Channel.
+    pub channel: usize,
+    /// First trial step without the sensor.
+    pub from_step: usize,
+    /// First trial step with the sensor back.
+    pub to_step: usize,
 }
 
-impl EmulatedSensor {
+/// Turns model-rate trial values into ADC scans (see the module docs), optionally with open
+/// wires injected.
+#[derive(Clone, Debug)]
+pub struct EmulatedSensor<'f> {
+    profile: Profile,
+    rng: u32,
+    open: &'f [OpenWire],
+}
+
+impl<'f> EmulatedSensor<'f> {
     /// A sensor with the fixed dither seed.
     pub const fn new(profile: Profile) -> Self {
+        Self::with_open_wires(profile, &[])
+    }
+
+    /// A sensor whose channels disconnect as `open` says.
+    pub const fn with_open_wires(profile: Profile, open: &'f [OpenWire]) -> Self {
         Self {
             profile,
             rng: 0x2545_F491,
+            open,
         }
     }
 
@@ -81,7 +100,15 @@ impl EmulatedSensor {
     pub fn scan(&mut self, trial: &Trial<'_>, step: usize, out: &mut [u16; MAX_CHANNELS]) {
         for (c, o) in out.iter_mut().enumerate().take(self.profile.channels) {
             let code = self.profile.to_counts(trial.value(step, c)) as i32 + self.dither();
-            *o = code.clamp(0, self.profile.adc_max as i32) as u16;
+            let open = self
+                .open
+                .iter()
+                .any(|w| w.channel == c && (w.from_step..w.to_step).contains(&step));
+            *o = if open {
+                0
+            } else {
+                code.clamp(0, self.profile.adc_max as i32) as u16
+            };
         }
     }
 }
@@ -116,18 +143,20 @@ pub fn wire(frame: &Frame, out: &mut [u8; MAX_WIRE]) -> usize {
     protocol::encode(frame, out)
 }
 
-/// Runs `trial` through the firmware path with `blob` and `script`; every frame the firmware
-/// would send goes to `sink` as wire bytes. Returns the number of frames sent.
+/// Runs `trial` through the firmware path with `blob`, the command `script` and the injected
+/// `open_wires`; every frame the firmware would send goes to `sink` as wire bytes. Returns the
+/// number of frames sent.
 pub fn run(
     profile: Profile,
     blob: &[u8],
     trial: &Trial<'_>,
     script: &[ScriptItem<'_>],
+    open_wires: &[OpenWire],
     mut sink: impl FnMut(&[u8]),
 ) -> usize {
     let mut app = App::new(profile, blob);
     let mut frontend = Frontend::new(profile);
-    let mut sensor = EmulatedSensor::new(profile);
+    let mut sensor = EmulatedSensor::with_open_wires(profile, open_wires);
     let mut deframer = Deframer::new();
     let mut sent = 0;
     let mut buf = [0u8; MAX_WIRE];
@@ -177,11 +206,19 @@ pub fn frame_inputs(
     n
 }
 
-/// The command script the QEMU comparison uses on [`CHEEZ_TRIAL`]: ping and info at boot, a
-/// corrupted frame (bad CRC) and an unknown type, a threshold change, grasp start at the
-/// trial's grasp label (step 52), release at step 300.
+/// The scenario the QEMU comparison uses on [`CHEEZ_TRIAL`]: ping and info at boot, line noise,
+/// a corrupted frame (bad CRC) and an unknown type, a threshold change, grasp start at the
+/// trial's grasp label (step 52), release at step 300; and channel 14's wire open during steps
+/// 150–169.
 pub mod cheez_script {
-    use super::ScriptItem;
+    use super::{OpenWire, ScriptItem};
+
+    /// Channel 14 disconnected for 20 steps.
+    pub const OPEN_WIRES: &[OpenWire] = &[OpenWire {
+        channel: 14,
+        from_step: 150,
+        to_step: 170,
+    }];
 
     /// Ping (seq 1, token 0xC0FFEE00) then info (seq 2).
     pub const BOOT: &[u8] = &[

@@ -106,7 +106,7 @@ impl HostFile {
 #[embassy_executor::task]
 async fn adc_task() {
     let mut frontend = Frontend::new(PROFILE);
-    let mut sensor = EmulatedSensor::new(PROFILE);
+    let mut sensor = EmulatedSensor::with_open_wires(PROFILE, cheez_script::OPEN_WIRES);
     let mut scan = [0u16; 16];
     for step in 0..CHEEZ_TRIAL.steps() {
         for _ in 0..RATIO {
