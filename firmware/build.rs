@@ -1,16 +1,25 @@
-//! Puts the project's single `memory.x` (at the repository root) on the linker search path,
-//! where cortex-m-rt's `link.x` includes it.
+//! Puts the chip's `memory.x` on the linker search path, where cortex-m-rt's `link.x` includes
+//! it (the repository's root `memory.x` for the STM32F405RG, `memory-f446re.x` for the
+//! STM32F446RE), and selects the model blob for the MODEL region (`build-model.rs`).
 
 use std::{env, fs, path::PathBuf};
+
+include!("build-model.rs");
 
 fn main() {
     let manifest_dir =
         PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("CARGO_MANIFEST_DIR"));
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("OUT_DIR"));
-    let memory_x = manifest_dir.join("..").join("memory.x");
+    let memory_x = if env::var_os("CARGO_FEATURE_STM32F446RE").is_some() {
+        manifest_dir.join("memory-f446re.x")
+    } else {
+        manifest_dir.join("..").join("memory.x")
+    };
     fs::copy(&memory_x, out.join("memory.x"))
         .unwrap_or_else(|e| panic!("copying {}: {e}", memory_x.display()));
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", memory_x.display());
+    println!("cargo:rerun-if-changed=build-model.rs");
     println!("cargo:rerun-if-changed=build.rs");
+    select_model_blob(&manifest_dir.join(".."), &out);
 }

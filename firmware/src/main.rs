@@ -1,37 +1,128 @@
-//! slipguard firmware, first light: clocks, a blinking status LED, a defmt heartbeat and the
-//! user button, on an embassy executor.
+//! slipguard firmware: samples the sensors, predicts on every channel every frame, streams flag
+//! frames to the hand controller and answers its commands.
 //!
-//! Board: Olimex STM32-H405 (STM32F405RGT6, 8 MHz crystal); see `README.md` for the pins.
-//! The inference core (`slipguard-core`) is linked in; the sensor pipeline comes next.
+//! Board: Olimex STM32-H405 (STM32F405RGT6, 8 MHz crystal) or an STM32F446RE (feature
+//! `stm32f446re`); pins in `README.md`. This file is only the board layer; the logic is
+//! `slipguard-app` (tested on the host, and run unchanged under QEMU by `qemu-app`):
+//!
+//! ```text
+//! TIM2 TRGO ─▶ ADC1 scan (16 or 4 ch) ─DMA2 S0 ring─▶ adc_task: Frontend (faults, FIR ÷16)
+//!    ─▶ EVENTS ─▶ inference (main): App::infer/emit, deadline, DWT cycles, UNSTABLE pin, IWDG
+//! USART1 RX ─DMA2 S2 ring─▶ rx_task ─▶ EVENTS (commands, in arrival order with the frames)
+//! inference ─▶ TX queue ─▶ tx_task ─DMA2 S7─▶ USART1 TX (COBS frames, docs/protocol.md)
+//! ```
 #![no_std]
 #![no_main]
 
-use defmt::info;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use defmt::{debug, error, info, warn};
 use embassy_executor::Spawner;
-use embassy_stm32::exti::{self, ExtiInput};
-use embassy_stm32::gpio::{Level, Output, Pull, Speed};
+use embassy_stm32::adc::{Adc, AdcChannel, Exten, RingBufferedAdc, SampleTime};
+use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::peripherals::{ADC1, IWDG, TIM2};
 use embassy_stm32::time::Hertz;
-use embassy_stm32::{bind_interrupts, interrupt};
-use embassy_time::{Instant, Timer};
+use embassy_stm32::timer::low_level::{MasterMode, Timer as LlTimer};
+use embassy_stm32::usart::{self, RingBufferedUartRx, Uart, UartTx};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{Peri, bind_interrupts, dma, peripherals};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_time::{Duration, Instant, Timer, with_timeout};
+use slipguard_app::app::App;
+use slipguard_app::frontend::{FrameInput, Frontend, SCANS_PER_FRAME};
+use slipguard_app::profile::Profile;
+use slipguard_app::replay;
+use slipguard_app::schedule::Deadline;
+use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
+use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
+#[cfg(all(feature = "stm32f405rg", feature = "stm32f446re"))]
+compile_error!("choose one chip feature: `--no-default-features --features stm32f446re`");
+
 bind_interrupts!(struct Irqs {
-    EXTI0 => exti::InterruptHandler<interrupt::typelevel::EXTI0>;
+    USART1 => usart::InterruptHandler<peripherals::USART1>;
+    DMA2_STREAM0 => dma::InterruptHandler<peripherals::DMA2_CH0>;
+    DMA2_STREAM2 => dma::InterruptHandler<peripherals::DMA2_CH2>;
+    DMA2_STREAM7 => dma::InterruptHandler<peripherals::DMA2_CH7>;
 });
 
-/// Heartbeat period; the LED toggles every half period.
-const HEARTBEAT_MS: u64 = 1000;
+/// The sensor profile of this build.
+#[cfg(not(feature = "profile-suction"))]
+const PROFILE: Profile = Profile::HAND;
+#[cfg(feature = "profile-suction")]
+const PROFILE: Profile = Profile::SUCTION;
+const CHANNELS: usize = PROFILE.channels;
 
-/// 168 MHz SYSCLK from the 8 MHz crystal:
-/// HSE 8 MHz / M 4 = 2 MHz VCO input, × N 168 = 336 MHz VCO,
-/// / P 2 = 168 MHz SYSCLK (AHB / 1 = HCLK 168 MHz, APB1 / 4 = 42 MHz, APB2 / 2 = 84 MHz),
-/// / Q 7 = 48 MHz for USB OTG FS and SDIO. embassy sets 5 flash wait states for 168 MHz.
+/// Link to the hand controller: USART1, 921 600 baud 8N1 (a 16-channel flag frame, 56 bytes on
+/// the wire, takes 0.61 ms).
+const BAUD: u32 = 921_600;
+/// Independent watchdog timeout: fed once per frame (every ≤ 60 ms) and on the stall path.
+const WATCHDOG_US: u32 = 1_000_000;
+
+#[repr(C, align(4))]
+struct Aligned<T>(T);
+
+const BLOB_BYTES: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/model.bin"));
+
+/// The default model blob (chosen at build time, see `build-model.rs`), placed at the start of
+/// the MODEL flash region by `model.x`. The firmware reads the region, not this constant.
+#[used]
+#[unsafe(link_section = ".model")]
+static MODEL_BLOB: Aligned<[u8; BLOB_BYTES.len()]> =
+    Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/model.bin")));
+
+unsafe extern "C" {
+    static __smodel: u8;
+    static __emodel: u8;
+}
+
+/// The MODEL flash region as flashed (the blob may have been re-flashed on its own).
+fn model_region() -> &'static [u8] {
+    let start = &raw const __smodel;
+    let end = &raw const __emodel;
+    let len = (end as usize).saturating_sub(start as usize);
+    // SAFETY: the linker script defines both symbols as the bounds of the MODEL region, which is
+    // memory-mapped flash, readable and unchanged for the whole run.
+    unsafe { core::slice::from_raw_parts(start, len) }
+}
+
+/// What the inference task receives, in arrival order.
+enum Event {
+    /// Bytes from the UART.
+    Rx(heapless::Vec<u8, 32>),
+    /// One frame's input and when it became available (µs since boot).
+    Frame(FrameInput, u64),
+}
+
+type TxFrame = heapless::Vec<u8, MAX_WIRE>;
+
+static EVENTS: Channel<CriticalSectionRawMutex, Event, 3> = Channel::new();
+static TX: Channel<CriticalSectionRawMutex, TxFrame, 8> = Channel::new();
+static APP: StaticCell<App<'static>> = StaticCell::new();
+/// Frames the ADC side could not queue (inference more than two frames behind) or lost to a DMA
+/// overrun; the inference task moves them into the app's `skipped` counter.
+static SKIPPED: AtomicU32 = AtomicU32::new(0);
+
+/// DMA ring: two halves of one frame each (SCANS_PER_FRAME scans × CHANNELS).
+const HALF: usize = SCANS_PER_FRAME * CHANNELS;
+static ADC_RING: StaticCell<[u16; 2 * HALF]> = StaticCell::new();
+static UART_RX_RING: StaticCell<[u8; 256]> = StaticCell::new();
+
+/// 168 MHz SYSCLK from the 8 MHz HSE: / M 4 × N 168 / P 2 (APB1 42 MHz, APB2 84 MHz, timers on
+/// both 84 / 168 MHz), / Q 7 = 48 MHz. The STM32F446RE could run 180 MHz; it keeps 168 so that
+/// every budget holds on both parts (a Nucleo feeds HSE from the ST-LINK's 8 MHz MCO: bypass).
 fn clock_config() -> embassy_stm32::Config {
     use embassy_stm32::rcc::*;
     let mut config = embassy_stm32::Config::default();
     config.rcc.hse = Some(Hse {
         freq: Hertz(8_000_000),
-        mode: HseMode::Oscillator,
+        mode: if cfg!(feature = "stm32f446re") {
+            HseMode::Bypass
+        } else {
+            HseMode::Oscillator
+        },
     });
     config.rcc.pll_src = PllSource::HSE;
     config.rcc.pll = Some(Pll {
@@ -39,7 +130,11 @@ fn clock_config() -> embassy_stm32::Config {
         mul: PllMul::MUL168,
         divp: Some(PllPDiv::DIV2),
         divq: Some(PllQDiv::DIV7),
-        divr: None,
+        divr: if cfg!(feature = "stm32f446re") {
+            Some(PllRDiv::DIV2)
+        } else {
+            None
+        },
     });
     config.rcc.ahb_pre = AHBPrescaler::DIV1;
     config.rcc.apb1_pre = APBPrescaler::DIV4;
@@ -48,43 +143,286 @@ fn clock_config() -> embassy_stm32::Config {
     config
 }
 
-#[embassy_executor::main]
-async fn main(spawner: Spawner) {
-    let p = embassy_stm32::init(clock_config());
+/// TIM2 (32-bit) update events at `rate × 16` per second drive the ADC scans (TRGO = update).
+fn start_scan_timer(tim: Peri<'static, TIM2>, rate_mhz: u32) -> LlTimer<'static, TIM2> {
+    let t = LlTimer::new(tim);
+    let clk = t.get_clock_frequency().0 as u64;
+    let scan_mhz = PROFILE.scan_rate_mhz(rate_mhz).max(1) as u64;
+    // Period in timer ticks, rounded: 84 MHz / 267.2 Hz = 314 371 (error < 2 ppm).
+    let ticks = ((clk * 1000 + scan_mhz / 2) / scan_mhz).clamp(2, u32::MAX as u64) as u32;
+    let r = t.regs_gp32();
+    r.psc().write_value(0);
+    r.arr().write_value(ticks - 1);
+    r.egr().write(|w| w.set_ug(true));
+    t.set_master_mode(MasterMode::UPDATE);
+    t.start();
     info!(
-        "slipguard firmware {} up: SYSCLK {} Hz, core MAX_HIDDEN = {}, MAX_INPUT = {}",
-        env!("CARGO_PKG_VERSION"),
-        embassy_stm32::rcc::clocks(&p.RCC)
-            .sys
-            .to_hertz()
-            .map_or(0, |h| h.0),
-        slipguard_core::MAX_HIDDEN,
-        slipguard_core::MAX_INPUT,
+        "ADC trigger: TIM2 {} Hz / {} = {} mHz scans",
+        clk,
+        ticks,
+        clk * 1_000_000 / ticks as u64 / 1000
     );
+    t
+}
 
-    // User button "BUT" on PA0 (pressed = high, external pull-down on the board).
-    let button = ExtiInput::new(p.PA0, p.EXTI0, Pull::Down, Irqs);
-    spawner.spawn(button_task(button).expect("button task already spawned"));
-
-    // Status LED "STAT" on PC12.
-    let mut led = Output::new(p.PC12, Level::Low, Speed::Low);
-    let mut beat: u32 = 0;
+/// Board layer, sampling side: one DMA half-buffer = one frame of scans into the front end.
+#[embassy_executor::task]
+async fn adc_task(mut rb: RingBufferedAdc<'static, ADC1>, mut frontend: Frontend) {
+    let mut half = [0u16; HALF];
+    // After an overrun the ring drops partial scans, so channel 0 stays at the start of a scan.
+    rb.set_alignment(CHANNELS);
+    rb.start();
     loop {
-        led.set_high();
-        Timer::after_millis(HEARTBEAT_MS / 2).await;
-        led.set_low();
-        Timer::after_millis(HEARTBEAT_MS / 2).await;
-        beat = beat.wrapping_add(1);
-        info!("heartbeat {} at {} ms", beat, Instant::now().as_millis());
+        match rb.read(&mut half).await {
+            Ok(_) => frontend.push_block(&half, |input| {
+                let ev = Event::Frame(input, Instant::now().as_micros());
+                if EVENTS.try_send(ev).is_err() {
+                    SKIPPED.fetch_add(1, Ordering::Relaxed);
+                }
+            }),
+            Err(_) => {
+                // Samples were lost (the task fell a whole half-buffer behind): a frame's worth
+                // at least. Count it; the ring resynchronises on whole scans by itself.
+                SKIPPED.fetch_add(1, Ordering::Relaxed);
+                warn!("ADC DMA overrun: frame skipped");
+            }
+        }
     }
 }
 
-/// Logs each press of the user button (EXTI0, rising edge).
+/// Board layer, command side: bytes from the hand controller, in chunks, in arrival order.
 #[embassy_executor::task]
-async fn button_task(mut button: ExtiInput<'static, embassy_stm32::mode::Async>) {
+async fn rx_task(mut rx: RingBufferedUartRx<'static>) {
+    let mut buf = [0u8; 32];
     loop {
-        button.wait_for_rising_edge().await;
-        info!("button pressed at {} ms", Instant::now().as_millis());
-        button.wait_for_falling_edge().await;
+        match rx.read(&mut buf).await {
+            Ok(n) if n > 0 => {
+                let v = heapless::Vec::from_slice(&buf[..n]).unwrap_or_default();
+                EVENTS.send(Event::Rx(v)).await;
+            }
+            Ok(_) => {}
+            Err(e) => warn!("UART RX error {}", e),
+        }
+    }
+}
+
+/// Board layer, output side: frames to the UART by DMA.
+#[embassy_executor::task]
+async fn tx_task(mut tx: UartTx<'static, embassy_stm32::mode::Async>) {
+    loop {
+        let f = TX.receive().await;
+        if let Err(e) = tx.write(&f).await {
+            warn!("UART TX error {}", e);
+        }
+    }
+}
+
+/// Queues a frame for the UART; a full queue counts the frame as skipped.
+fn send(app: &mut App<'_>, f: &Frame) {
+    let mut buf = [0u8; MAX_WIRE];
+    let n = replay::wire(f, &mut buf);
+    let v = TxFrame::from_slice(&buf[..n]).unwrap_or_default();
+    if TX.try_send(v).is_err() {
+        app.note_skipped();
+    }
+}
+
+#[embassy_executor::main]
+async fn main(spawner: Spawner) {
+    let p = embassy_stm32::init(clock_config());
+    let mut cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
+    cp.DCB.enable_trace();
+    cp.DWT.enable_cycle_counter();
+    let sysclk = embassy_stm32::rcc::clocks(&p.RCC)
+        .sys
+        .to_hertz()
+        .map_or(0, |h| h.0);
+    info!(
+        "slipguard firmware {} ({}), profile {} ({} channels), SYSCLK {} Hz",
+        env!("CARGO_PKG_VERSION"),
+        if cfg!(feature = "stm32f446re") {
+            "STM32F446RE"
+        } else {
+            "STM32F405RG"
+        },
+        PROFILE.name,
+        CHANNELS,
+        sysclk
+    );
+
+    // Watchdog first: whatever happens next, a hang resets the part.
+    let mut wdg: IndependentWatchdog<'static, IWDG> = IndependentWatchdog::new(p.IWDG, WATCHDOG_US);
+    wdg.unleash();
+
+    // The model: checked at boot, faults reported, never a crash.
+    let app = APP.init_with(|| App::new(PROFILE, model_region()));
+    match app.model() {
+        Ok(m) => {
+            let c = m.config();
+            info!(
+                "model {:#010x} '{}' {} hidden {} at {} mHz, blob {} bytes CRC {:#010x} (built-in default {} bytes)",
+                c.model_id,
+                c.name_str(),
+                c.variant.name(),
+                c.hidden[0],
+                c.sample_rate_mhz,
+                m.blob().len,
+                m.blob().crc,
+                MODEL_BLOB.0.len()
+            );
+        }
+        Err(e) => error!("model fault {}: no flags, a fault frame every second", e),
+    }
+
+    // UNSTABLE line to the hand controller: high while any channel is unstable.
+    let mut unstable_pin = Output::new(p.PB12, Level::Low, Speed::VeryHigh);
+    let mut led = Output::new(p.PC12, Level::Low, Speed::Low);
+
+    // UART to the hand controller.
+    let mut ucfg = usart::Config::default();
+    ucfg.baudrate = BAUD;
+    let uart = match Uart::new(p.USART1, p.PB7, p.PB6, p.DMA2_CH7, p.DMA2_CH2, Irqs, ucfg) {
+        Ok(u) => u,
+        Err(e) => {
+            error!("USART1 config {}", e);
+            loop {
+                Timer::after_secs(1).await;
+            }
+        }
+    };
+    let (tx, rx) = uart.split();
+    let rx = rx.into_ring_buffered(UART_RX_RING.init([0; 256]));
+    spawner.spawn(rx_task(rx).expect("rx task spawned twice"));
+    spawner.spawn(tx_task(tx).expect("tx task spawned twice"));
+
+    // ADC1: timer-triggered scan of the profile's channels, DMA2 stream 0 into the ring.
+    let rate_mhz = app.rate_mhz();
+    let adc = Adc::new(p.ADC1);
+    let st = SampleTime::CYCLES480;
+    #[cfg(not(feature = "profile-suction"))]
+    let seq = [
+        (p.PA0.degrade_adc(), st),
+        (p.PA1.degrade_adc(), st),
+        (p.PA2.degrade_adc(), st),
+        (p.PA3.degrade_adc(), st),
+        (p.PA4.degrade_adc(), st),
+        (p.PA5.degrade_adc(), st),
+        (p.PA6.degrade_adc(), st),
+        (p.PA7.degrade_adc(), st),
+        (p.PB0.degrade_adc(), st),
+        (p.PB1.degrade_adc(), st),
+        (p.PC0.degrade_adc(), st),
+        (p.PC1.degrade_adc(), st),
+        (p.PC2.degrade_adc(), st),
+        (p.PC3.degrade_adc(), st),
+        (p.PC4.degrade_adc(), st),
+        (p.PC5.degrade_adc(), st),
+    ];
+    #[cfg(feature = "profile-suction")]
+    let seq = [
+        (p.PA0.degrade_adc(), st),
+        (p.PA1.degrade_adc(), st),
+        (p.PA2.degrade_adc(), st),
+        (p.PA3.degrade_adc(), st),
+    ];
+    let rb = adc.into_ring_buffered(
+        p.DMA2_CH0,
+        ADC_RING.init([0; 2 * HALF]),
+        Irqs,
+        seq.into_iter(),
+        embassy_stm32::triggers::TIM2_TRGO,
+        Exten::RISING_EDGE,
+    );
+    let _scan_timer = start_scan_timer(p.TIM2, rate_mhz);
+    spawner.spawn(adc_task(rb, Frontend::new(PROFILE)).expect("adc task spawned twice"));
+
+    // The inference task: commands and frames in arrival order.
+    let deadline = Deadline::for_rate_mhz(rate_mhz);
+    let stall_after = Duration::from_micros(3 * deadline.period_us as u64);
+    let mut deframer = Deframer::new();
+    let mut skipped_seen = 0u32;
+    let mut last_fault = 0u16;
+    let (mut cyc_min, mut cyc_max, mut cyc_sum, mut cyc_n) = (u32::MAX, 0u32, 0u64, 0u32);
+    let report_every = (rate_mhz / 100).max(1); // every 10 s
+    loop {
+        let ev = match with_timeout(stall_after, EVENTS.receive()).await {
+            Ok(ev) => ev,
+            Err(_) => {
+                // No frame for three periods: the ADC or its DMA stopped. Report it; the
+                // watchdog is not fed here, so the part resets if this lasts.
+                error!("no ADC frame for 3 periods");
+                let f = app.stall_frame(3);
+                send(app, &f);
+                continue;
+            }
+        };
+        match ev {
+            Event::Rx(bytes) => {
+                let mut replies: heapless::Vec<Frame, 8> = heapless::Vec::new();
+                replay::receive(app, &mut deframer, &bytes, |f| {
+                    let _ = replies.push(*f);
+                });
+                for f in &replies {
+                    debug!("reply type {:#04x}", f.msg.msg_type());
+                    send(app, f);
+                }
+            }
+            Event::Frame(input, available_us) => {
+                let skipped = SKIPPED.load(Ordering::Relaxed);
+                while skipped_seen != skipped {
+                    app.note_skipped();
+                    skipped_seen = skipped_seen.wrapping_add(1);
+                }
+                let c0 = cortex_m::peripheral::DWT::cycle_count();
+                let r = app.infer(&input);
+                let cycles = cortex_m::peripheral::DWT::cycle_count().wrapping_sub(c0);
+                let late = deadline.is_late(available_us, Instant::now().as_micros());
+                if late {
+                    warn!(
+                        "frame {} late: {} cycles, overruns {}",
+                        input.index,
+                        cycles,
+                        app.overruns().saturating_add(1)
+                    );
+                }
+                if let Some(f) = app.emit(&r, late) {
+                    send(app, &f);
+                }
+                if r.unstable != 0 {
+                    unstable_pin.set_high();
+                } else {
+                    unstable_pin.set_low();
+                }
+                if input.fault != last_fault {
+                    warn!(
+                        "frame {}: sensor fault mask {:#06x} (kinds per channel, 1 open 2 saturated 4 stuck: {})",
+                        input.index,
+                        input.fault,
+                        input.kinds[..CHANNELS]
+                    );
+                    last_fault = input.fault;
+                }
+                wdg.pet();
+                led.toggle();
+                cyc_min = cyc_min.min(cycles);
+                cyc_max = cyc_max.max(cycles);
+                cyc_sum += cycles as u64;
+                cyc_n += 1;
+                debug!("frame {}: {} cycles", input.index, cycles);
+                if cyc_n >= report_every {
+                    info!(
+                        "inference cycles per frame ({} ch): min {} mean {} max {} ({} frames); overruns {}, skipped {}",
+                        CHANNELS,
+                        cyc_min,
+                        cyc_sum / cyc_n as u64,
+                        cyc_max,
+                        cyc_n,
+                        app.overruns(),
+                        app.skipped()
+                    );
+                    (cyc_min, cyc_max, cyc_sum, cyc_n) = (u32::MAX, 0, 0, 0);
+                }
+            }
+        }
     }
 }

@@ -1,0 +1,443 @@
+//! The application: model check at boot, per-frame inference over every channel, flags,
+//! commands and their replies, system faults. Board layers own one [`App`] and call
+//! [`App::frame`] for every [`FrameInput`] and [`App::handle`] for every received frame.
+//!
+//! - At boot [`App::new`] validates the blob (CRC, version, sizes), the model rate against the
+//!   profile and the input unit. Any failure puts the app in a system fault: no flag frames,
+//!   a [`Fault`] frame once per second instead, replies with status `NoModel`.
+//! - Flagging is on after boot ("armed"); grasp start resets every channel's state, tares
+//!   (suction profile) and arms; release disarms (p(unstable) still reported, unstable mask 0).
+//! - Faulted channels (see [`crate::fault`]) are not stepped: p = [`P_NONE`], flag 0, and
+//!   their model state is reset when they recover.
+
+use crate::MAX_CHANNELS;
+use crate::frontend::FrameInput;
+use crate::profile::Profile;
+use crate::schedule::frame_timestamp_us;
+use slipguard_core::blob::{BlobError, InputUnit};
+use slipguard_core::decision::DecisionConfig;
+use slipguard_core::model::{ChannelState, Model};
+use slipguard_core::protocol::{
+    Command, DecodeError, Error, Fault, Flags, Frame, Info, Message, P_NONE, Reply, ReplyBody,
+    ReplyStatus, fault_code, status,
+};
+
+/// Firmware version reported by info (major, minor, patch).
+pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
+
+/// Why the app is not predicting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SystemFault {
+    /// The blob failed validation.
+    BadModel(BlobError),
+    /// The model's sample rate (mHz) is not one the profile runs.
+    RateMismatch(u32),
+    /// The model expects another input unit than the profile delivers.
+    UnitMismatch,
+}
+
+impl SystemFault {
+    /// (code, detail, value) of the fault frame.
+    pub fn wire(&self) -> (u8, u8, u32) {
+        match *self {
+            Self::BadModel(e) => {
+                let (detail, value) = blob_error_detail(e);
+                (fault_code::BAD_MODEL, detail, value)
+            }
+            Self::RateMismatch(r) => (fault_code::RATE_MISMATCH, 0, r),
+            Self::UnitMismatch => (fault_code::UNIT_MISMATCH, 0, 0),
+        }
+    }
+}
+
+/// Stable detail code and value of a blob error (docs/protocol.md lists them).
+pub fn blob_error_detail(e: BlobError) -> (u8, u32) {
+    match e {
+        BlobError::Truncated { needed, .. } => (1, needed),
+        BlobError::BadMagic => (2, 0),
+        BlobError::UnsupportedVersion(v) => (3, v as u32),
+        BlobError::BadLength => (4, 0),
+        BlobError::BadCrc { computed, .. } => (5, computed),
+        BlobError::Misaligned => (6, 0),
+        BlobError::UnknownVariant(v) => (7, v as u32),
+        BlobError::UnknownField => (8, 0),
+        BlobError::OverBounds => (9, 0),
+        BlobError::InconsistentSizes => (10, 0),
+        BlobError::Stft(_) => (11, 0),
+        BlobError::BadSetting => (12, 0),
+        BlobError::UnknownTensor => (13, 0),
+        BlobError::DuplicateTensor(k) => (14, k as u32),
+        BlobError::MissingTensor(k) => (15, k as u32),
+        BlobError::TensorShape(k) => (16, k as u32),
+        BlobError::TensorOutOfBounds(k) => (17, k as u32),
+        BlobError::QuantParam(k) => (18, k as u32),
+        _ => (0xFF, 0),
+    }
+}
+
+/// What [`App::frame`] computed for one frame, before it is stamped and counted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameResult {
+    /// The input's frame index.
+    pub index: u32,
+    /// Unstable mask (already 0 when disarmed).
+    pub unstable: u16,
+    /// Fault mask.
+    pub fault: u16,
+    /// p(unstable) per channel or [`P_NONE`].
+    pub p: [u16; MAX_CHANNELS],
+}
+
+/// The firmware application over a model borrowed from flash (or a host buffer).
+pub struct App<'m> {
+    profile: Profile,
+    model: Result<Model<'m>, SystemFault>,
+    states: [ChannelState; MAX_CHANNELS],
+    /// Channels whose state must be reset before their next step (after a fault).
+    stale: u16,
+    armed: bool,
+    tared: bool,
+    tare_q4: [i32; MAX_CHANNELS],
+    last_q4: [i32; MAX_CHANNELS],
+    seq: u16,
+    overruns: u16,
+    skipped: u16,
+    fault_frames: u32,
+}
+
+impl<'m> App<'m> {
+    /// Validates `blob` against `profile` and starts armed (or in a system fault).
+    pub fn new(profile: Profile, blob: &'m [u8]) -> Self {
+        let model = Model::from_bytes(blob)
+            .map_err(SystemFault::BadModel)
+            .and_then(|m| {
+                let c = m.config();
+                if !profile.check_rate(c.sample_rate_mhz) {
+                    Err(SystemFault::RateMismatch(c.sample_rate_mhz))
+                } else if c.input_unit != profile.unit {
+                    Err(SystemFault::UnitMismatch)
+                } else {
+                    Ok(m)
+                }
+            });
+        Self {
+            profile,
+            model,
+            states: [const { ChannelState::new() }; MAX_CHANNELS],
+            stale: 0,
+            armed: true,
+            tared: false,
+            tare_q4: [0; MAX_CHANNELS],
+            last_q4: [0; MAX_CHANNELS],
+            seq: 0,
+            overruns: 0,
+            skipped: 0,
+            fault_frames: 0,
+        }
+    }
+
+    /// The profile.
+    pub fn profile(&self) -> &Profile {
+        &self.profile
+    }
+
+    /// The model, or why there is none.
+    pub fn model(&self) -> Result<&Model<'m>, SystemFault> {
+        self.model.as_ref().map_err(|e| *e)
+    }
+
+    /// The frame rate to run the ADC at: the model's, or the profile's default without one.
+    pub fn rate_mhz(&self) -> u32 {
+        match &self.model {
+            Ok(m) => m.config().sample_rate_mhz,
+            Err(_) => self.profile.default_rate_mhz(),
+        }
+    }
+
+    /// Whether flagging is on.
+    pub fn armed(&self) -> bool {
+        self.armed
+    }
+
+    /// Frames late so far.
+    pub fn overruns(&self) -> u16 {
+        self.overruns
+    }
+
+    /// Frames skipped so far.
+    pub fn skipped(&self) -> u16 {
+        self.skipped
+    }
+
+    /// Counts a frame that was acquired but will never be processed or sent.
+    pub fn note_skipped(&mut self) {
+        self.skipped = self.skipped.saturating_add(1);
+    }
+
+    fn next_seq(&mut self) -> u16 {
+        let s = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        s
+    }
+
+    /// Runs every channel of one frame through the model. Call [`Self::emit`] with its result
+    /// once the deadline check is known.
+    pub fn infer(&mut self, input: &FrameInput) -> FrameResult {
+        let n = self.profile.channels.min(MAX_CHANNELS);
+        self.last_q4 = input.value_q4;
+        let mut r = FrameResult {
+            index: input.index,
+            unstable: 0,
+            fault: input.fault,
+            p: [P_NONE; MAX_CHANNELS],
+        };
+        let Ok(model) = &self.model else {
+            return r;
+        };
+        for c in 0..n {
+            let bit = 1u16 << c;
+            if input.fault & bit != 0 {
+                self.stale |= bit;
+                continue;
+            }
+            let st = &mut self.states[c];
+            if self.stale & bit != 0 {
+                st.reset();
+                self.stale &= !bit;
+            }
+            let raw = self
+                .profile
+                .to_model_units(input.value_q4[c], self.tare_q4[c]);
+            let out = model.step(st, raw);
+            r.p[c] = out.p_unstable_q15.max(0) as u16;
+            if out.unstable && self.armed {
+                r.unstable |= bit;
+            }
+        }
+        r
+    }
+
+    /// Stamps, counts and frames a result: a flag frame, or, in a system fault, a fault frame
+    /// once per second (`None` in between).
+    pub fn emit(&mut self, r: &FrameResult, late: bool) -> Option<Frame> {
+        if late {
+            self.overruns = self.overruns.saturating_add(1);
+        }
+        let rate = self.rate_mhz();
+        let timestamp_us = frame_timestamp_us(r.index, rate);
+        if let Err(fault) = self.model {
+            let per_second = (rate / 1000).max(1);
+            let due = self.fault_frames.is_multiple_of(per_second);
+            self.fault_frames = self.fault_frames.wrapping_add(1);
+            if !due {
+                return None;
+            }
+            let (code, detail, value) = fault.wire();
+            return Some(Frame {
+                seq: self.next_seq(),
+                msg: Message::Fault(Fault {
+                    timestamp_us,
+                    code,
+                    detail,
+                    value,
+                }),
+            });
+        }
+        let mut st = 0;
+        if self.armed {
+            st |= status::ARMED;
+        }
+        if late {
+            st |= status::LATE;
+        }
+        if self.tared {
+            st |= status::TARED;
+        }
+        Some(Frame {
+            seq: self.next_seq(),
+            msg: Message::Flags(Flags {
+                timestamp_us,
+                status: st,
+                channels: self.profile.channels.min(MAX_CHANNELS) as u8,
+                unstable: r.unstable,
+                fault: r.fault,
+                overruns: self.overruns,
+                skipped: self.skipped,
+                p: r.p,
+            }),
+        })
+    }
+
+    /// A fault frame saying the sensors stopped delivering frames (`periods` model periods
+    /// without one); the board layer sends it while it waits.
+    pub fn stall_frame(&mut self, periods: u32) -> Frame {
+        Frame {
+            seq: self.next_seq(),
+            msg: Message::Fault(Fault {
+                timestamp_us: 0,
+                code: fault_code::SENSOR_STALL,
+                detail: 0,
+                value: periods,
+            }),
+        }
+    }
+
+    /// [`Self::infer`] then [`Self::emit`].
+    pub fn frame(&mut self, input: &FrameInput, late: bool) -> Option<Frame> {
+        let r = self.infer(input);
+        self.emit(&r, late)
+    }
+
+    /// Answers one received frame (a command, or a decode error with its [`Error`] reply).
+    /// Frames that are not commands (e.g. a flag frame echoed back) get an `UnknownType` error.
+    pub fn handle(&mut self, received: Result<Frame, (DecodeError, Error)>) -> Frame {
+        let (request_seq, cmd) = match received {
+            Ok(Frame {
+                seq,
+                msg: Message::Command(c),
+            }) => (seq, c),
+            Ok(f) => {
+                let e = Error {
+                    error: DecodeError::UnknownType(f.msg.msg_type()).code(),
+                    msg_type: f.msg.msg_type(),
+                    request_seq: f.seq,
+                };
+                return Frame {
+                    seq: self.next_seq(),
+                    msg: Message::Error(e),
+                };
+            }
+            Err((_, e)) => {
+                return Frame {
+                    seq: self.next_seq(),
+                    msg: Message::Error(e),
+                };
+            }
+        };
+        let (status, body) = self.command(cmd);
+        Frame {
+            seq: self.next_seq(),
+            msg: Message::Reply(Reply {
+                request_seq,
+                status,
+                body,
+            }),
+        }
+    }
+
+    fn decision(&self) -> DecisionConfig {
+        match &self.model {
+            Ok(m) => m.decision(),
+            Err(_) => DecisionConfig {
+                threshold_q15: 0,
+                raise_after: 0,
+                clear_after: 0,
+            },
+        }
+    }
+
+    fn command(&mut self, cmd: Command) -> (ReplyStatus, ReplyBody) {
+        let have_model = self.model.is_ok();
+        match cmd {
+            Command::Ping { token } => (ReplyStatus::Ok, ReplyBody::Pong { token }),
+            Command::Info => (ReplyStatus::Ok, ReplyBody::Info(self.info())),
+            Command::GraspStart if have_model => {
+                for s in &mut self.states {
+                    s.reset();
+                }
+                self.stale = 0;
+                if self.profile.tare {
+                    self.tare_q4 = self.last_q4;
+                    // The profile's live zero is subtracted as well: keep it out of the tare.
+                    let z = self.profile.zero_counts << crate::decimate::OUT_FRAC_BITS;
+                    for t in &mut self.tare_q4 {
+                        *t -= z;
+                    }
+                    self.tared = true;
+                }
+                self.armed = true;
+                (ReplyStatus::Ok, ReplyBody::GraspStarted)
+            }
+            Command::Release if have_model => {
+                self.armed = false;
+                (ReplyStatus::Ok, ReplyBody::Released)
+            }
+            Command::SetThreshold {
+                threshold_q15,
+                raise_after,
+                clear_after,
+            } if have_model => {
+                let ok = (1..=i16::MAX as u16).contains(&threshold_q15)
+                    && raise_after >= 1
+                    && clear_after >= 1;
+                if ok && let Ok(m) = &mut self.model {
+                    m.set_decision(DecisionConfig {
+                        threshold_q15: threshold_q15 as i16,
+                        raise_after,
+                        clear_after,
+                    });
+                }
+                let d = self.decision();
+                (
+                    if ok {
+                        ReplyStatus::Ok
+                    } else {
+                        ReplyStatus::BadArgument
+                    },
+                    ReplyBody::ThresholdSet {
+                        threshold_q15: d.threshold_q15 as u16,
+                        raise_after: d.raise_after,
+                        clear_after: d.clear_after,
+                    },
+                )
+            }
+            Command::GraspStart => (ReplyStatus::NoModel, ReplyBody::GraspStarted),
+            Command::Release => (ReplyStatus::NoModel, ReplyBody::Released),
+            Command::SetThreshold { .. } => (
+                ReplyStatus::NoModel,
+                ReplyBody::ThresholdSet {
+                    threshold_q15: 0,
+                    raise_after: 0,
+                    clear_after: 0,
+                },
+            ),
+        }
+    }
+
+    /// The info reply's fields.
+    pub fn info(&self) -> Info {
+        let d = self.decision();
+        let mut i = Info {
+            firmware: FIRMWARE_VERSION,
+            profile: self.profile.id as u8,
+            channels: self.profile.channels as u8,
+            oversample: crate::decimate::RATIO as u8,
+            model_ok: 0,
+            variant: 0xFF,
+            model_id: 0,
+            model_crc: 0,
+            sample_rate_mhz: self.rate_mhz(),
+            hidden: 0,
+            threshold_q15: d.threshold_q15 as u16,
+            raise_after: d.raise_after,
+            clear_after: d.clear_after,
+            name: [0; 12],
+        };
+        if let Ok(m) = &self.model {
+            let c = m.config();
+            i.model_ok = 1;
+            i.variant = c.variant as u8;
+            i.model_id = c.model_id;
+            i.model_crc = m.blob().crc;
+            i.hidden = c.hidden[0];
+            i.name = c.name;
+        }
+        i
+    }
+
+    /// The unit the profile feeds the model (for logs).
+    pub fn unit(&self) -> InputUnit {
+        self.profile.unit
+    }
+}

@@ -1,0 +1,266 @@
+//! Replay of a recorded trial through exactly the firmware's path, producing the bytes the
+//! firmware would send. Used by the host (`slipguard replay`, issue 7, wraps [`run`]) and
+//! mirrored step by step by the QEMU build (`firmware/qemu-app`), whose output must equal it
+//! byte for byte.
+//!
+//! The trial is at the model rate (e.g. the dataset's 16.7 Hz, in the profile's unit). The
+//! emulated sensor ([`EmulatedSensor`]) turns each step into [`RATIO`] ADC scans: the value
+//! converted to an ADC code ([`Profile::to_counts`]), held for the step, plus a deterministic
+//! ±1 LSB dither (ADC noise, so a live channel is never mistaken for a stuck one). From there on
+//! the code is the firmware's: [`Frontend`] (fault detection, anti-alias filter, ÷16) and
+//! [`App`], with the script's command bytes fed through the same deframer just before the frame
+//! they are scheduled for, as the inference task does when a command and a frame are both
+//! pending.
+
+use crate::MAX_CHANNELS;
+use crate::app::App;
+use crate::decimate::RATIO;
+use crate::frontend::{FrameInput, Frontend};
+use crate::profile::Profile;
+use slipguard_core::protocol::{self, Deframer, Frame, MAX_WIRE};
+
+/// A trial at the model rate: `steps × channels` values, row-major, as little-endian `i32`
+/// (the format of `fixtures/*.bin`).
+#[derive(Clone, Copy, Debug)]
+pub struct Trial<'a> {
+    bytes: &'a [u8],
+    /// Values per step.
+    pub channels: usize,
+}
+
+impl<'a> Trial<'a> {
+    /// Wraps little-endian `i32` rows of `channels` values (a trailing partial row is ignored).
+    pub const fn new(bytes: &'a [u8], channels: usize) -> Self {
+        Self { bytes, channels }
+    }
+    /// Number of steps.
+    pub fn steps(&self) -> usize {
+        self.bytes.len() / (4 * self.channels.max(1))
+    }
+    /// Value of `channel` at `step` (0 outside the trial).
+    pub fn value(&self, step: usize, channel: usize) -> i32 {
+        let i = 4 * (step * self.channels + channel);
+        match self.bytes.get(i..i + 4) {
+            Some(b) if channel < self.channels => i32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+            _ => 0,
+        }
+    }
+}
+
+/// The Cheez_100_814_top_3 trial of the eagle-shoal dataset (CDLA-Permissive-1.0, see
+/// `fixtures/README.md`): 400 steps × 16 forces in mN at 16.7 Hz; dropped after the lift.
+pub const CHEEZ_TRIAL: Trial<'static> =
+    Trial::new(include_bytes!("../fixtures/Cheez_100_814_top_3.bin"), 16);
+
+/// An injected open wire: `channel` reads code 0 during trial steps `from_step..to_step`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OpenWire {
+    /// Channel.
+    pub channel: usize,
+    /// First trial step without the sensor.
+    pub from_step: usize,
+    /// First trial step with the sensor back.
+    pub to_step: usize,
+}
+
+/// Turns model-rate trial values into ADC scans (see the module docs), optionally with open
+/// wires injected.
+#[derive(Clone, Debug)]
+pub struct EmulatedSensor<'f> {
+    profile: Profile,
+    rng: u32,
+    open: &'f [OpenWire],
+}
+
+impl<'f> EmulatedSensor<'f> {
+    /// A sensor with the fixed dither seed.
+    pub const fn new(profile: Profile) -> Self {
+        Self::with_open_wires(profile, &[])
+    }
+
+    /// A sensor whose channels disconnect as `open` says.
+    pub const fn with_open_wires(profile: Profile, open: &'f [OpenWire]) -> Self {
+        Self {
+            profile,
+            rng: 0x2545_F491,
+            open,
+        }
+    }
+
+    fn dither(&mut self) -> i32 {
+        let mut x = self.rng;
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        self.rng = x;
+        (x % 3) as i32 - 1
+    }
+
+    /// One scan for trial step `step` (every call advances the dither).
+    pub fn scan(&mut self, trial: &Trial<'_>, step: usize, out: &mut [u16; MAX_CHANNELS]) {
+        for (c, o) in out.iter_mut().enumerate().take(self.profile.channels) {
+            let code = self.profile.to_counts(trial.value(step, c)) as i32 + self.dither();
+            let open = self
+                .open
+                .iter()
+                .any(|w| w.channel == c && (w.from_step..w.to_step).contains(&step));
+            *o = if open {
+                0
+            } else {
+                code.clamp(0, self.profile.adc_max as i32) as u16
+            };
+        }
+    }
+}
+
+/// Command bytes that arrive just before frame `before_frame` is processed.
+#[derive(Clone, Copy, Debug)]
+pub struct ScriptItem<'a> {
+    /// Frame index the bytes precede.
+    pub before_frame: u32,
+    /// Raw bytes as received on the UART (any number of frames, or garbage).
+    pub bytes: &'a [u8],
+}
+
+/// Feeds received bytes through the deframer and the app; every reply goes to `sink`.
+/// The inference task of every board layer calls this for each received chunk.
+pub fn receive(
+    app: &mut App<'_>,
+    deframer: &mut Deframer,
+    bytes: &[u8],
+    mut sink: impl FnMut(&Frame),
+) {
+    for &b in bytes {
+        if let Some(r) = deframer.push_decode(b) {
+            let reply = app.handle(r);
+            sink(&reply);
+        }
+    }
+}
+
+/// Encodes a frame for the UART.
+pub fn wire(frame: &Frame, out: &mut [u8; MAX_WIRE]) -> usize {
+    protocol::encode(frame, out)
+}
+
+/// Runs `trial` through the firmware path with `blob`, the command `script` and the injected
+/// `open_wires`; every frame the firmware would send goes to `sink` as wire bytes. Returns the
+/// number of frames sent.
+pub fn run(
+    profile: Profile,
+    blob: &[u8],
+    trial: &Trial<'_>,
+    script: &[ScriptItem<'_>],
+    open_wires: &[OpenWire],
+    mut sink: impl FnMut(&[u8]),
+) -> usize {
+    let mut app = App::new(profile, blob);
+    let mut frontend = Frontend::new(profile);
+    let mut sensor = EmulatedSensor::with_open_wires(profile, open_wires);
+    let mut deframer = Deframer::new();
+    let mut sent = 0;
+    let mut buf = [0u8; MAX_WIRE];
+    let mut scan = [0u16; MAX_CHANNELS];
+    for step in 0..trial.steps() {
+        for _ in 0..RATIO {
+            sensor.scan(trial, step, &mut scan);
+            let Some(input) = frontend.push_scan(&scan) else {
+                continue;
+            };
+            for item in script.iter().filter(|s| s.before_frame == input.index) {
+                receive(&mut app, &mut deframer, item.bytes, |f| {
+                    let n = wire(f, &mut buf);
+                    sink(&buf[..n]);
+                    sent += 1;
+                });
+            }
+            if let Some(f) = app.frame(&input, false) {
+                let n = wire(&f, &mut buf);
+                sink(&buf[..n]);
+                sent += 1;
+            }
+        }
+    }
+    sent
+}
+
+/// The frame inputs of a trial, without the app (for tests and plots).
+pub fn frame_inputs(
+    profile: Profile,
+    trial: &Trial<'_>,
+    mut each: impl FnMut(&FrameInput),
+) -> usize {
+    let mut frontend = Frontend::new(profile);
+    let mut sensor = EmulatedSensor::new(profile);
+    let mut scan = [0u16; MAX_CHANNELS];
+    let mut n = 0;
+    for step in 0..trial.steps() {
+        for _ in 0..RATIO {
+            sensor.scan(trial, step, &mut scan);
+            if let Some(input) = frontend.push_scan(&scan) {
+                each(&input);
+                n += 1;
+            }
+        }
+    }
+    n
+}
+
+/// The scenario the QEMU comparison uses on [`CHEEZ_TRIAL`]: ping and info at boot, line noise,
+/// a corrupted frame (bad CRC) and an unknown type, a threshold change, grasp start at the
+/// trial's grasp label (step 52), release at step 300; and channel 14's wire open during steps
+/// 150–169.
+pub mod cheez_script {
+    use super::{OpenWire, ScriptItem};
+
+    /// Channel 14 disconnected for 20 steps.
+    pub const OPEN_WIRES: &[OpenWire] = &[OpenWire {
+        channel: 14,
+        from_step: 150,
+        to_step: 170,
+    }];
+
+    /// Ping (seq 1, token 0xC0FFEE00) then info (seq 2).
+    pub const BOOT: &[u8] = &[
+        0x04, 0x01, 0x10, 0x01, 0x01, 0x08, 0xEE, 0xFF, 0xC0, 0xF4, 0x52, 0x36, 0xAE, 0x00, 0x04,
+        0x01, 0x14, 0x02, 0x05, 0x57, 0xD1, 0xE1, 0xB0, 0x00,
+    ];
+    /// Line noise, then a set-threshold frame with a flipped bit (bad CRC), then a frame of
+    /// unknown type 0x42 with a good CRC.
+    pub const GARBAGE: &[u8] = &[
+        0x55, 0xAA, 0x00, 0x04, 0x01, 0x13, 0x03, 0x01, 0x08, 0x41, 0x01, 0x01, 0x1D, 0xA7, 0xAC,
+        0x67, 0x00, 0x04, 0x01, 0x42, 0x04, 0x05, 0xD3, 0x24, 0x8A, 0x8E, 0x00,
+    ];
+    /// Set threshold 0.6 (19661), raise after 2, clear after 2 (seq 5).
+    pub const THRESHOLD: &[u8] = &[
+        0x04, 0x01, 0x13, 0x05, 0x09, 0xCD, 0x4C, 0x02, 0x02, 0xC6, 0x89, 0xEC, 0x8E, 0x00,
+    ];
+    /// Grasp start (seq 6).
+    pub const GRASP: &[u8] = &[0x04, 0x01, 0x11, 0x06, 0x05, 0xB8, 0xD6, 0x46, 0xD2, 0x00];
+    /// Release (seq 7).
+    pub const RELEASE: &[u8] = &[0x04, 0x01, 0x12, 0x07, 0x05, 0xA0, 0x59, 0x1B, 0xC9, 0x00];
+
+    /// The script.
+    pub const SCRIPT: &[ScriptItem<'static>] = &[
+        ScriptItem {
+            before_frame: 0,
+            bytes: BOOT,
+        },
+        ScriptItem {
+            before_frame: 10,
+            bytes: GARBAGE,
+        },
+        ScriptItem {
+            before_frame: 20,
+            bytes: THRESHOLD,
+        },
+        ScriptItem {
+            before_frame: 52,
+            bytes: GRASP,
+        },
+        ScriptItem {
+            before_frame: 300,
+            bytes: RELEASE,
+        },
+    ];
+}

@@ -1,0 +1,1210 @@
+//! Wire protocol between the firmware and the hand controller (version 1).
+//!
+//! Byte-by-byte description, timing and examples: `docs/protocol.md`. This module is the only
+//! encoder and decoder of it; the firmware, the QEMU build, the host replay and the monitor all
+//! use it, and the golden tests pin its bytes.
+//!
+//! A frame on the wire is `COBS(payload) 00`. The payload is
+//!
+//! ```text
+//! 0  u8   version (1)
+//! 1  u8   type
+//! 2  u16  seq          sender's frame counter (device: every frame it sends; controller: its commands)
+//! 4  ...  body         fixed length per type
+//! n  u32  CRC-32/ISO-HDLC of bytes 0..n
+//! ```
+//!
+//! All integers are little-endian. Decoding checks, in this order: COBS, minimum length, CRC,
+//! version, type, body length, field values; each failure has its own [`DecodeError`], and
+//! nothing here panics on any input.
+
+use crate::blob::CRC32;
+
+/// Protocol version carried in every frame.
+pub const VERSION: u8 = 1;
+/// Most channels a flag frame carries.
+pub const MAX_CHANNELS: usize = 16;
+/// Header bytes before the body (version, type, seq).
+pub const HEADER_LEN: usize = 4;
+/// Trailing CRC bytes.
+pub const CRC_LEN: usize = 4;
+/// Largest payload (decoded frame, CRC included) of any v1 message.
+pub const MAX_PAYLOAD: usize = 64;
+/// Largest frame on the wire: COBS of the largest payload plus the 0x00 delimiter.
+pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_PAYLOAD) + 1;
+/// p(unstable) value that means "not predicted" (faulted channel, no model, not running).
+pub const P_NONE: u16 = 0xFFFF;
+
+/// Message type codes (byte 1 of the payload).
+pub mod msg_type {
+    /// Device → controller: one frame of flags.
+    pub const FLAGS: u8 = 0x01;
+    /// Device → controller: a system fault (bad model blob, rate mismatch…); no flags follow.
+    pub const FAULT: u8 = 0x02;
+    /// Device → controller: a received frame was rejected (bad CRC, unknown type…).
+    pub const ERROR: u8 = 0x03;
+    /// Controller → device: ping.
+    pub const PING: u8 = 0x10;
+    /// Controller → device: grasp start (reset channel states, tare, start flagging).
+    pub const GRASP_START: u8 = 0x11;
+    /// Controller → device: release (stop flagging until the next grasp start).
+    pub const RELEASE: u8 = 0x12;
+    /// Controller → device: set threshold and hysteresis.
+    pub const SET_THRESHOLD: u8 = 0x13;
+    /// Controller → device: info request.
+    pub const INFO: u8 = 0x14;
+    /// Bit set in the type of a reply: reply type = command type | REPLY.
+    pub const REPLY: u8 = 0x80;
+}
+
+/// Status bits of a flag frame (byte 8).
+pub mod status {
+    /// Flagging is on (after boot and grasp start; off after release). When off, the unstable
+    /// mask is 0 but p(unstable) is still reported.
+    pub const ARMED: u8 = 1 << 0;
+    /// This frame finished after its deadline (it is still sent; the overrun counter counts it).
+    pub const LATE: u8 = 1 << 1;
+    /// The tare of the suction profile is in force.
+    pub const TARED: u8 = 1 << 2;
+}
+
+/// One frame of per-channel results (type 0x01).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Flags {
+    /// Acquisition time of the frame's last sample, in µs since boot, from the sample clock
+    /// (frame index × model period), wrapping at 2^32.
+    pub timestamp_us: u32,
+    /// [`status`] bits.
+    pub status: u8,
+    /// Number of channels N (1..=16); only `p[..N]` is sent.
+    pub channels: u8,
+    /// Bit c set: channel c is unstable.
+    pub unstable: u16,
+    /// Bit c set: channel c is faulted (saturated, stuck or disconnected) and not predicted on.
+    pub fault: u16,
+    /// Frames that finished after their deadline since boot (saturating).
+    pub overruns: u16,
+    /// Frames acquired but never processed since boot (saturating).
+    pub skipped: u16,
+    /// p(unstable) per channel, Q0.15 (0..=32767), or [`P_NONE`].
+    pub p: [u16; MAX_CHANNELS],
+}
+
+impl Flags {
+    /// Body length for `channels` channels.
+    pub const fn body_len(channels: usize) -> usize {
+        14 + 2 * channels
+    }
+}
+
+/// System fault codes (type 0x02, byte 8).
+pub mod fault_code {
+    /// The model blob failed validation (detail: [`crate::blob::BlobError`] kind, value: extra).
+    pub const BAD_MODEL: u8 = 1;
+    /// The model's sample rate is not one the sensor profile runs (value: the model's rate in mHz).
+    pub const RATE_MISMATCH: u8 = 2;
+    /// The ADC/DMA stopped delivering samples (value: frames since the last scan).
+    pub const SENSOR_STALL: u8 = 3;
+    /// The model expects another input unit (mN vs counts) than the sensor profile delivers.
+    pub const UNIT_MISMATCH: u8 = 4;
+}
+
+/// A system fault (type 0x02): the device is up but not predicting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Fault {
+    /// Time since boot in µs (sample clock or uptime), wrapping.
+    pub timestamp_us: u32,
+    /// [`fault_code`].
+    pub code: u8,
+    /// Code-specific detail (for [`fault_code::BAD_MODEL`], the blob error kind).
+    pub detail: u8,
+    /// Code-specific value.
+    pub value: u32,
+}
+
+/// A rejected incoming frame (type 0x03).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Error {
+    /// [`DecodeError::code`] of the failure.
+    pub error: u8,
+    /// Type byte of the rejected frame, when it was readable (else 0).
+    pub msg_type: u8,
+    /// Sequence number of the rejected frame, when it was readable (else 0xFFFF).
+    pub request_seq: u16,
+}
+
+/// Commands from the hand controller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Command {
+    /// Answered with [`ReplyBody::Pong`] carrying the same token.
+    Ping {
+        /// Echoed back.
+        token: u32,
+    },
+    /// Reset every channel's state, tare (suction profile) and start flagging.
+    GraspStart,
+    /// Stop flagging until the next grasp start (so opening the hand is not read as a drop).
+    Release,
+    /// Set the decision threshold and hysteresis.
+    SetThreshold {
+        /// p(unstable) threshold, Q0.15, 1..=32767.
+        threshold_q15: u16,
+        /// Consecutive frames at or above the threshold before the flag rises, >= 1.
+        raise_after: u8,
+        /// Consecutive frames below the threshold before it clears, >= 1.
+        clear_after: u8,
+    },
+    /// Answered with [`ReplyBody::Info`].
+    Info,
+}
+
+impl Command {
+    /// The message type code.
+    pub fn msg_type(&self) -> u8 {
+        match self {
+            Self::Ping { .. } => msg_type::PING,
+            Self::GraspStart => msg_type::GRASP_START,
+            Self::Release => msg_type::RELEASE,
+            Self::SetThreshold { .. } => msg_type::SET_THRESHOLD,
+            Self::Info => msg_type::INFO,
+        }
+    }
+}
+
+/// Reply status (byte 6 of every reply).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum ReplyStatus {
+    /// Done.
+    Ok = 0,
+    /// An argument was out of range; nothing changed.
+    BadArgument = 1,
+    /// There is no valid model (the device is in a fault state); nothing changed.
+    NoModel = 2,
+}
+
+impl ReplyStatus {
+    fn from_u8(v: u8) -> Option<Self> {
+        Some(match v {
+            0 => Self::Ok,
+            1 => Self::BadArgument,
+            2 => Self::NoModel,
+            _ => return None,
+        })
+    }
+}
+
+/// Device description (reply to [`Command::Info`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Info {
+    /// Firmware version (major, minor, patch).
+    pub firmware: [u8; 3],
+    /// Sensor profile: 0 hand, 1 suction.
+    pub profile: u8,
+    /// Channels in flag frames.
+    pub channels: u8,
+    /// ADC samples per model sample (decimation factor).
+    pub oversample: u8,
+    /// 1 if the model blob is valid and running.
+    pub model_ok: u8,
+    /// Model variant (blob header byte 16), 0xFF without a model.
+    pub variant: u8,
+    /// Model id from the blob header.
+    pub model_id: u32,
+    /// CRC-32 of the model blob (its fingerprint).
+    pub model_crc: u32,
+    /// Model sample rate, mHz (= frame rate).
+    pub sample_rate_mhz: u32,
+    /// Hidden size of LSTM 0.
+    pub hidden: u16,
+    /// Threshold in force, Q0.15.
+    pub threshold_q15: u16,
+    /// Hysteresis in force.
+    pub raise_after: u8,
+    /// Hysteresis in force.
+    pub clear_after: u8,
+    /// Model name, zero padded.
+    pub name: [u8; 12],
+}
+
+/// Type-specific part of a reply.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReplyBody {
+    /// Reply to ping.
+    Pong {
+        /// The ping's token.
+        token: u32,
+    },
+    /// Reply to grasp start.
+    GraspStarted,
+    /// Reply to release.
+    Released,
+    /// Reply to set threshold: the settings now in force.
+    ThresholdSet {
+        /// Threshold in force.
+        threshold_q15: u16,
+        /// Hysteresis in force.
+        raise_after: u8,
+        /// Hysteresis in force.
+        clear_after: u8,
+    },
+    /// Reply to info.
+    Info(Info),
+}
+
+impl ReplyBody {
+    /// The reply's message type code (command type | 0x80).
+    pub fn msg_type(&self) -> u8 {
+        msg_type::REPLY
+            | match self {
+                Self::Pong { .. } => msg_type::PING,
+                Self::GraspStarted => msg_type::GRASP_START,
+                Self::Released => msg_type::RELEASE,
+                Self::ThresholdSet { .. } => msg_type::SET_THRESHOLD,
+                Self::Info(_) => msg_type::INFO,
+            }
+    }
+}
+
+/// A reply to one command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reply {
+    /// `seq` of the command answered.
+    pub request_seq: u16,
+    /// Outcome.
+    pub status: ReplyStatus,
+    /// Type-specific fields.
+    pub body: ReplyBody,
+}
+
+/// Every v1 message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Message {
+    /// Flag frame.
+    Flags(Flags),
+    /// System fault.
+    Fault(Fault),
+    /// Rejected incoming frame.
+    Error(Error),
+    /// Command (controller → device).
+    Command(Command),
+    /// Reply (device → controller).
+    Reply(Reply),
+}
+
+impl Message {
+    /// The type code.
+    pub fn msg_type(&self) -> u8 {
+        match self {
+            Self::Flags(_) => msg_type::FLAGS,
+            Self::Fault(_) => msg_type::FAULT,
+            Self::Error(_) => msg_type::ERROR,
+            Self::Command(c) => c.msg_type(),
+            Self::Reply(r) => r.body.msg_type(),
+        }
+    }
+}
+
+/// A decoded frame: sequence number and message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Frame {
+    /// Sender's sequence number.
+    pub seq: u16,
+    /// The message.
+    pub msg: Message,
+}
+
+/// Why a frame was rejected. Each has a stable [`code`](DecodeError::code) sent back in
+/// [`Error`] frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DecodeError {
+    /// Nothing between two delimiters.
+    Empty,
+    /// The bytes are not valid COBS.
+    Cobs,
+    /// Longer than any v1 frame ([`MAX_PAYLOAD`] decoded, [`MAX_WIRE`] on the wire).
+    TooLong,
+    /// Shorter than header + CRC.
+    Truncated {
+        /// Decoded length.
+        len: u8,
+    },
+    /// The CRC does not match.
+    BadCrc {
+        /// CRC in the frame.
+        stored: u32,
+        /// CRC of the bytes received.
+        computed: u32,
+    },
+    /// A protocol version this side does not speak.
+    WrongVersion(u8),
+    /// A type code v1 does not define.
+    UnknownType(u8),
+    /// The body length does not match the type.
+    BadLength {
+        /// Type code.
+        msg_type: u8,
+        /// Body length received.
+        len: u8,
+    },
+    /// A field holds a value outside its range (e.g. threshold 0, more than 16 channels).
+    BadValue {
+        /// Type code.
+        msg_type: u8,
+    },
+}
+
+impl DecodeError {
+    /// Stable numeric code (byte 4 of an [`Error`] frame).
+    pub fn code(&self) -> u8 {
+        match self {
+            Self::Empty => 1,
+            Self::Cobs => 2,
+            Self::TooLong => 3,
+            Self::Truncated { .. } => 4,
+            Self::BadCrc { .. } => 5,
+            Self::WrongVersion(_) => 6,
+            Self::UnknownType(_) => 7,
+            Self::BadLength { .. } => 8,
+            Self::BadValue { .. } => 9,
+        }
+    }
+}
+
+impl core::fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Empty => write!(f, "empty frame"),
+            Self::Cobs => write!(f, "invalid COBS encoding"),
+            Self::TooLong => write!(f, "frame longer than {MAX_PAYLOAD} bytes"),
+            Self::Truncated { len } => write!(f, "frame truncated: {len} bytes"),
+            Self::BadCrc { stored, computed } => write!(
+                f,
+                "CRC mismatch: stored {stored:#010x}, computed {computed:#010x}"
+            ),
+            Self::WrongVersion(v) => write!(f, "protocol version {v}, expected {VERSION}"),
+            Self::UnknownType(t) => write!(f, "unknown message type {t:#04x}"),
+            Self::BadLength { msg_type, len } => {
+                write!(f, "message type {msg_type:#04x} with a {len}-byte body")
+            }
+            Self::BadValue { msg_type } => {
+                write!(f, "message type {msg_type:#04x} with a field out of range")
+            }
+        }
+    }
+}
+
+#[cfg(any(test, feature = "std"))]
+impl std::error::Error for DecodeError {}
+
+/// Little-endian writer over a fixed buffer (callers size it with [`MAX_PAYLOAD`]).
+struct Writer<'a> {
+    buf: &'a mut [u8],
+    pos: usize,
+}
+
+impl Writer<'_> {
+    fn put(&mut self, bytes: &[u8]) {
+        let end = (self.pos + bytes.len()).min(self.buf.len());
+        let n = end.saturating_sub(self.pos);
+        if let Some(dst) = self.buf.get_mut(self.pos..end) {
+            dst.copy_from_slice(&bytes[..n]);
+        }
+        self.pos += bytes.len();
+    }
+    fn u8(&mut self, v: u8) {
+        self.put(&[v]);
+    }
+    fn u16(&mut self, v: u16) {
+        self.put(&v.to_le_bytes());
+    }
+    fn u32(&mut self, v: u32) {
+        self.put(&v.to_le_bytes());
+    }
+}
+
+/// Little-endian reader over a body whose length was checked.
+struct Reader<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl Reader<'_> {
+    fn u8(&mut self) -> u8 {
+        let v = self.buf.get(self.pos).copied().unwrap_or(0);
+        self.pos += 1;
+        v
+    }
+    fn u16(&mut self) -> u16 {
+        u16::from_le_bytes([self.u8(), self.u8()])
+    }
+    fn u32(&mut self) -> u32 {
+        u32::from_le_bytes([self.u8(), self.u8(), self.u8(), self.u8()])
+    }
+    fn array<const N: usize>(&mut self) -> [u8; N] {
+        let mut a = [0u8; N];
+        for b in &mut a {
+            *b = self.u8();
+        }
+        a
+    }
+}
+
+/// Body length of the fixed-size types; `None` for flags (depends on N) and unknown types.
+fn fixed_body_len(t: u8) -> Option<usize> {
+    use msg_type::*;
+    Some(match t {
+        FAULT => 10,
+        ERROR => 4,
+        PING => 4,
+        GRASP_START | RELEASE | INFO => 0,
+        SET_THRESHOLD => 4,
+        x if x == REPLY | PING => 7,
+        x if x == REPLY | GRASP_START || x == REPLY | RELEASE => 3,
+        x if x == REPLY | SET_THRESHOLD => 7,
+        x if x == REPLY | INFO => 43,
+        _ => return None,
+    })
+}
+
+/// Writes the payload (header, body, CRC) of `frame` into `out` and returns its length
+/// (at most [`MAX_PAYLOAD`]; `out` must hold that many bytes, else the frame is cut and the
+/// returned length is 0).
+pub fn encode_payload(frame: &Frame, out: &mut [u8]) -> usize {
+    let mut w = Writer { buf: out, pos: 0 };
+    w.u8(VERSION);
+    w.u8(frame.msg.msg_type());
+    w.u16(frame.seq);
+    match &frame.msg {
+        Message::Flags(f) => {
+            let n = (f.channels as usize).min(MAX_CHANNELS);
+            w.u32(f.timestamp_us);
+            w.u8(f.status);
+            w.u8(n as u8);
+            w.u16(f.unstable);
+            w.u16(f.fault);
+            w.u16(f.overruns);
+            w.u16(f.skipped);
+            for &p in &f.p[..n] {
+                w.u16(p);
+            }
+        }
+        Message::Fault(f) => {
+            w.u32(f.timestamp_us);
+            w.u8(f.code);
+            w.u8(f.detail);
+            w.u32(f.value);
+        }
+        Message::Error(e) => {
+            w.u8(e.error);
+            w.u8(e.msg_type);
+            w.u16(e.request_seq);
+        }
+        Message::Command(c) => match *c {
+            Command::Ping { token } => w.u32(token),
+            Command::GraspStart | Command::Release | Command::Info => {}
+            Command::SetThreshold {
+                threshold_q15,
+                raise_after,
+                clear_after,
+            } => {
+                w.u16(threshold_q15);
+                w.u8(raise_after);
+                w.u8(clear_after);
+            }
+        },
+        Message::Reply(r) => {
+            w.u16(r.request_seq);
+            w.u8(r.status as u8);
+            match r.body {
+                ReplyBody::Pong { token } => w.u32(token),
+                ReplyBody::GraspStarted | ReplyBody::Released => {}
+                ReplyBody::ThresholdSet {
+                    threshold_q15,
+                    raise_after,
+                    clear_after,
+                } => {
+                    w.u16(threshold_q15);
+                    w.u8(raise_after);
+                    w.u8(clear_after);
+                }
+                ReplyBody::Info(i) => {
+                    w.u8(VERSION);
+                    w.put(&i.firmware);
+                    w.u8(i.profile);
+                    w.u8(i.channels);
+                    w.u8(i.oversample);
+                    w.u8(i.model_ok);
+                    w.u8(i.variant);
+                    w.u8(0);
+                    w.u16(i.hidden);
+                    w.u32(i.model_id);
+                    w.u32(i.model_crc);
+                    w.u32(i.sample_rate_mhz);
+                    w.u16(i.threshold_q15);
+                    w.u8(i.raise_after);
+                    w.u8(i.clear_after);
+                    w.put(&i.name);
+                }
+            }
+        }
+    }
+    let body_end = w.pos;
+    if body_end + CRC_LEN > w.buf.len() {
+        return 0;
+    }
+    let crc = CRC32.checksum(&w.buf[..body_end]);
+    w.u32(crc);
+    w.pos
+}
+
+/// Encodes `frame` for the wire (`COBS(payload) 00`) into `out` (at least [`MAX_WIRE`] bytes)
+/// and returns the number of bytes to send (0 if `out` is too small).
+pub fn encode(frame: &Frame, out: &mut [u8]) -> usize {
+    let mut payload = [0u8; MAX_PAYLOAD];
+    let n = encode_payload(frame, &mut payload);
+    if n == 0 {
+        return 0;
+    }
+    match cobs::try_encode(&payload[..n], out) {
+        Ok(len) if len < out.len() => {
+            out[len] = 0;
+            len + 1
+        }
+        _ => 0,
+    }
+}
+
+/// Decodes one frame from its wire bytes without the 0x00 delimiter (a trailing 0x00 is
+/// tolerated).
+pub fn decode(wire: &[u8]) -> Result<Frame, DecodeError> {
+    let wire = match wire.split_last() {
+        Some((0, rest)) => rest,
+        _ => wire,
+    };
+    if wire.is_empty() {
+        return Err(DecodeError::Empty);
+    }
+    if wire.len() > MAX_WIRE - 1 {
+        return Err(DecodeError::TooLong);
+    }
+    if wire.contains(&0) {
+        return Err(DecodeError::Cobs);
+    }
+    let mut payload = [0u8; MAX_PAYLOAD];
+    let n = match cobs::decode(wire, &mut payload) {
+        Ok(report) => report.frame_size(),
+        Err(cobs::DecodeError::TargetBufTooSmall) => return Err(DecodeError::TooLong),
+        Err(_) => return Err(DecodeError::Cobs),
+    };
+    decode_payload(payload.get(..n).ok_or(DecodeError::TooLong)?)
+}
+
+/// Decodes one payload (already COBS-decoded: header, body, CRC).
+pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
+    let n = payload.len();
+    if n > MAX_PAYLOAD {
+        return Err(DecodeError::TooLong);
+    }
+    if n < HEADER_LEN + CRC_LEN {
+        return Err(DecodeError::Truncated { len: n as u8 });
+    }
+    let body_end = n - CRC_LEN;
+    let stored = u32::from_le_bytes([
+        payload[body_end],
+        payload[body_end + 1],
+        payload[body_end + 2],
+        payload[body_end + 3],
+    ]);
+    let computed = CRC32.checksum(&payload[..body_end]);
+    if stored != computed {
+        return Err(DecodeError::BadCrc { stored, computed });
+    }
+    if payload[0] != VERSION {
+        return Err(DecodeError::WrongVersion(payload[0]));
+    }
+    let t = payload[1];
+    let seq = u16::from_le_bytes([payload[2], payload[3]]);
+    let body = &payload[HEADER_LEN..body_end];
+    let bad_len = DecodeError::BadLength {
+        msg_type: t,
+        len: body.len() as u8,
+    };
+    let bad_value = DecodeError::BadValue { msg_type: t };
+    if t == msg_type::FLAGS {
+        if body.len() < Flags::body_len(0) {
+            return Err(bad_len);
+        }
+    } else {
+        match fixed_body_len(t) {
+            None => return Err(DecodeError::UnknownType(t)),
+            Some(len) if len != body.len() => return Err(bad_len),
+            Some(_) => {}
+        }
+    }
+    let mut r = Reader { buf: body, pos: 0 };
+    let msg = match t {
+        msg_type::FLAGS => {
+            let timestamp_us = r.u32();
+            let status = r.u8();
+            let channels = r.u8();
+            let n = channels as usize;
+            if n == 0 || n > MAX_CHANNELS {
+                return Err(bad_value);
+            }
+            if body.len() != Flags::body_len(n) {
+                return Err(bad_len);
+            }
+            let mut f = Flags {
+                timestamp_us,
+                status,
+                channels,
+                unstable: r.u16(),
+                fault: r.u16(),
+                overruns: r.u16(),
+                skipped: r.u16(),
+                p: [P_NONE; MAX_CHANNELS],
+            };
+            for p in &mut f.p[..n] {
+                *p = r.u16();
+                if *p > i16::MAX as u16 && *p != P_NONE {
+                    return Err(bad_value);
+                }
+            }
+            let valid = if n == 16 { u16::MAX } else { (1u16 << n) - 1 };
+            if f.unstable & !valid != 0 || f.fault & !valid != 0 {
+                return Err(bad_value);
+            }
+            Message::Flags(f)
+        }
+        msg_type::FAULT => Message::Fault(Fault {
+            timestamp_us: r.u32(),
+            code: r.u8(),
+            detail: r.u8(),
+            value: r.u32(),
+        }),
+        msg_type::ERROR => Message::Error(Error {
+            error: r.u8(),
+            msg_type: r.u8(),
+            request_seq: r.u16(),
+        }),
+        msg_type::PING => Message::Command(Command::Ping { token: r.u32() }),
+        msg_type::GRASP_START => Message::Command(Command::GraspStart),
+        msg_type::RELEASE => Message::Command(Command::Release),
+        msg_type::INFO => Message::Command(Command::Info),
+        msg_type::SET_THRESHOLD => {
+            let threshold_q15 = r.u16();
+            let raise_after = r.u8();
+            let clear_after = r.u8();
+            if threshold_q15 == 0
+                || threshold_q15 > i16::MAX as u16
+                || raise_after == 0
+                || clear_after == 0
+            {
+                return Err(bad_value);
+            }
+            Message::Command(Command::SetThreshold {
+                threshold_q15,
+                raise_after,
+                clear_after,
+            })
+        }
+        _ => {
+            // A reply: the fixed length was checked above.
+            let request_seq = r.u16();
+            let status = ReplyStatus::from_u8(r.u8()).ok_or(bad_value)?;
+            let body = match t & !msg_type::REPLY {
+                msg_type::PING => ReplyBody::Pong { token: r.u32() },
+                msg_type::GRASP_START => ReplyBody::GraspStarted,
+                msg_type::RELEASE => ReplyBody::Released,
+                msg_type::SET_THRESHOLD => ReplyBody::ThresholdSet {
+                    threshold_q15: r.u16(),
+                    raise_after: r.u8(),
+                    clear_after: r.u8(),
+                },
+                msg_type::INFO => {
+                    let version = r.u8();
+                    if version != VERSION {
+                        return Err(bad_value);
+                    }
+                    let firmware = r.array::<3>();
+                    let profile = r.u8();
+                    let channels = r.u8();
+                    let oversample = r.u8();
+                    let model_ok = r.u8();
+                    let variant = r.u8();
+                    let _reserved = r.u8();
+                    ReplyBody::Info(Info {
+                        firmware,
+                        profile,
+                        channels,
+                        oversample,
+                        model_ok,
+                        variant,
+                        hidden: r.u16(),
+                        model_id: r.u32(),
+                        model_crc: r.u32(),
+                        sample_rate_mhz: r.u32(),
+                        threshold_q15: r.u16(),
+                        raise_after: r.u8(),
+                        clear_after: r.u8(),
+                        name: r.array::<12>(),
+                    })
+                }
+                _ => return Err(DecodeError::UnknownType(t)),
+            };
+            Message::Reply(Reply {
+                request_seq,
+                status,
+                body,
+            })
+        }
+    };
+    Ok(Frame { seq, msg })
+}
+
+/// Best-effort type and sequence number of a payload that failed to decode, for the
+/// [`Error`] reply: only when the CRC is good (else the header cannot be trusted).
+pub fn error_reply_for(wire: &[u8], err: DecodeError) -> Error {
+    let mut e = Error {
+        error: err.code(),
+        msg_type: 0,
+        request_seq: 0xFFFF,
+    };
+    if matches!(
+        err,
+        DecodeError::WrongVersion(_)
+            | DecodeError::UnknownType(_)
+            | DecodeError::BadLength { .. }
+            | DecodeError::BadValue { .. }
+    ) {
+        let wire = match wire.split_last() {
+            Some((0, rest)) => rest,
+            _ => wire,
+        };
+        let mut payload = [0u8; MAX_PAYLOAD];
+        if let Ok(report) = cobs::decode(wire, &mut payload)
+            && report.frame_size() >= HEADER_LEN
+        {
+            e.msg_type = payload[1];
+            e.request_seq = u16::from_le_bytes([payload[2], payload[3]]);
+        }
+    }
+    e
+}
+
+/// Splits a byte stream into frames at 0x00 delimiters and resynchronises after garbage: an
+/// over-long run is discarded up to the next delimiter and reported once as
+/// [`DecodeError::TooLong`].
+#[derive(Clone, Debug)]
+pub struct Deframer {
+    buf: [u8; MAX_WIRE],
+    len: usize,
+    overflow: bool,
+}
+
+impl Default for Deframer {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// What [`Deframer::push`] found at a delimiter.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Deframed<'a> {
+    /// A complete frame's wire bytes (without the delimiter), not yet decoded.
+    Frame(&'a [u8]),
+    /// A run longer than any frame was dropped.
+    Overflow,
+}
+
+impl Deframer {
+    /// An empty deframer.
+    pub const fn new() -> Self {
+        Self {
+            buf: [0; MAX_WIRE],
+            len: 0,
+            overflow: false,
+        }
+    }
+
+    /// Feeds one byte; at a delimiter returns what ended there (nothing for empty runs, which
+    /// senders may use as padding or to resynchronise).
+    pub fn push(&mut self, byte: u8) -> Option<Deframed<'_>> {
+        if byte == 0 {
+            let len = core::mem::take(&mut self.len);
+            if core::mem::take(&mut self.overflow) {
+                return Some(Deframed::Overflow);
+            }
+            if len == 0 {
+                return None;
+            }
+            return Some(Deframed::Frame(&self.buf[..len]));
+        }
+        if self.overflow {
+            return None;
+        }
+        match self.buf.get_mut(self.len) {
+            Some(slot) if self.len < MAX_WIRE - 1 => {
+                *slot = byte;
+                self.len += 1;
+            }
+            _ => {
+                self.overflow = true;
+                self.len = 0;
+            }
+        }
+        None
+    }
+
+    /// Feeds one byte and decodes a completed frame.
+    pub fn push_decode(&mut self, byte: u8) -> Option<Result<Frame, (DecodeError, Error)>> {
+        match self.push(byte)? {
+            Deframed::Overflow => Some(Err((
+                DecodeError::TooLong,
+                error_reply_for(&[], DecodeError::TooLong),
+            ))),
+            Deframed::Frame(w) => Some(decode(w).map_err(|e| (e, error_reply_for(w, e)))),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn wire(frame: &Frame) -> Vec<u8> {
+        let mut out = [0u8; MAX_WIRE];
+        let n = encode(frame, &mut out);
+        assert!(n > 0);
+        out[..n].to_vec()
+    }
+
+    fn hex(b: &[u8]) -> String {
+        b.iter().map(|x| format!("{x:02x}")).collect()
+    }
+
+    fn flags_example() -> Frame {
+        let mut p = [P_NONE; MAX_CHANNELS];
+        for (i, v) in p.iter_mut().enumerate().take(4) {
+            *v = [120, 32767, 0, 16384][i];
+        }
+        p[2] = P_NONE;
+        Frame {
+            seq: 0x1234,
+            msg: Message::Flags(Flags {
+                timestamp_us: 1_000_000,
+                status: status::ARMED,
+                channels: 4,
+                unstable: 0b0010,
+                fault: 0b0100,
+                overruns: 1,
+                skipped: 0,
+                p,
+            }),
+        }
+    }
+
+    /// Pins the exact bytes of one frame of each kind (the C decoder and docs/protocol.md quote
+    /// them). The expected strings were computed independently (Python: zlib.crc32 and a
+    /// hand-written COBS encoder).
+    #[test]
+    fn golden_bytes() {
+        let cases: [(Frame, &str); 6] = [
+            (
+                flags_example(),
+                "080101341240420f04010402020402010101027805ff7fffff06403e8f902000",
+            ),
+            (
+                Frame {
+                    seq: 7,
+                    msg: Message::Command(Command::Ping { token: 0xDEADBEEF }),
+                },
+                "0401100709efbeadde82cc4de800",
+            ),
+            (
+                Frame {
+                    seq: 8,
+                    msg: Message::Command(Command::SetThreshold {
+                        threshold_q15: 19661,
+                        raise_after: 2,
+                        clear_after: 3,
+                    }),
+                },
+                "0401130809cd4c02038eaa754500",
+            ),
+            (
+                Frame {
+                    seq: 9,
+                    msg: Message::Command(Command::GraspStart),
+                },
+                "040111090577cade5500",
+            ),
+            (
+                Frame {
+                    seq: 3,
+                    msg: Message::Reply(Reply {
+                        request_seq: 7,
+                        status: ReplyStatus::Ok,
+                        body: ReplyBody::Pong { token: 0xDEADBEEF },
+                    }),
+                },
+                "0401900302070109efbeadde8d5b96ac00",
+            ),
+            (
+                Frame {
+                    seq: 0,
+                    msg: Message::Fault(Fault {
+                        timestamp_us: 0,
+                        code: fault_code::BAD_MODEL,
+                        detail: 5,
+                        value: 0x11223344,
+                    }),
+                },
+                "03010201010101010b0105443322115e830dd000",
+            ),
+        ];
+        for (frame, want) in cases {
+            let w = wire(&frame);
+            assert_eq!(hex(&w), want, "{frame:?}");
+            assert_eq!(*w.last().unwrap(), 0);
+            assert!(!w[..w.len() - 1].contains(&0));
+            assert_eq!(decode(&w).unwrap(), frame);
+        }
+    }
+
+    fn all_kinds() -> Vec<Frame> {
+        let info = Info {
+            firmware: [0, 1, 0],
+            profile: 0,
+            channels: 16,
+            oversample: 16,
+            model_ok: 1,
+            variant: 2,
+            model_id: 0x5EED_0001,
+            model_crc: 0x1234_5678,
+            sample_rate_mhz: 16_700,
+            hidden: 128,
+            threshold_q15: 16384,
+            raise_after: 1,
+            clear_after: 1,
+            name: *b"golden-c128\0",
+        };
+        let mut v = vec![flags_example()];
+        let mut full = [0u16; 16];
+        for (i, p) in full.iter_mut().enumerate() {
+            *p = (i as u16) * 2000;
+        }
+        v.push(Frame {
+            seq: u16::MAX,
+            msg: Message::Flags(Flags {
+                timestamp_us: u32::MAX,
+                status: 0xFF,
+                channels: 16,
+                unstable: 0xFFFF,
+                fault: 0x8001,
+                overruns: u16::MAX,
+                skipped: u16::MAX,
+                p: full,
+            }),
+        });
+        for msg in [
+            Message::Fault(Fault {
+                timestamp_us: 5,
+                code: 2,
+                detail: 0,
+                value: 40_000,
+            }),
+            Message::Error(Error {
+                error: 5,
+                msg_type: 0,
+                request_seq: 0xFFFF,
+            }),
+            Message::Command(Command::Ping { token: 0 }),
+            Message::Command(Command::GraspStart),
+            Message::Command(Command::Release),
+            Message::Command(Command::Info),
+            Message::Command(Command::SetThreshold {
+                threshold_q15: 32767,
+                raise_after: 255,
+                clear_after: 1,
+            }),
+            Message::Reply(Reply {
+                request_seq: 1,
+                status: ReplyStatus::Ok,
+                body: ReplyBody::GraspStarted,
+            }),
+            Message::Reply(Reply {
+                request_seq: 2,
+                status: ReplyStatus::NoModel,
+                body: ReplyBody::Released,
+            }),
+            Message::Reply(Reply {
+                request_seq: 3,
+                status: ReplyStatus::BadArgument,
+                body: ReplyBody::ThresholdSet {
+                    threshold_q15: 100,
+                    raise_after: 2,
+                    clear_after: 2,
+                },
+            }),
+            Message::Reply(Reply {
+                request_seq: 4,
+                status: ReplyStatus::Ok,
+                body: ReplyBody::Info(info),
+            }),
+        ] {
+            v.push(Frame { seq: 42, msg });
+        }
+        v
+    }
+
+    #[test]
+    fn every_kind_round_trips_and_fits() {
+        for f in all_kinds() {
+            let mut payload = [0u8; MAX_PAYLOAD];
+            let n = encode_payload(&f, &mut payload);
+            assert!((HEADER_LEN + CRC_LEN..=MAX_PAYLOAD).contains(&n), "{f:?}");
+            assert_eq!(decode_payload(&payload[..n]).unwrap(), f);
+            let w = wire(&f);
+            assert!(w.len() <= MAX_WIRE);
+            assert_eq!(decode(&w[..w.len() - 1]).unwrap(), f);
+        }
+    }
+
+    /// Re-encodes a payload after `edit`, with a fresh CRC.
+    fn with_crc(mut payload: Vec<u8>) -> Vec<u8> {
+        let crc = CRC32.checksum(&payload);
+        payload.extend_from_slice(&crc.to_le_bytes());
+        let mut out = vec![0u8; cobs::max_encoding_length(payload.len()) + 1];
+        let n = cobs::encode(&payload, &mut out);
+        out.truncate(n);
+        out
+    }
+
+    #[test]
+    fn malformed_frames_each_have_their_error() {
+        let good = wire(&Frame {
+            seq: 9,
+            msg: Message::Command(Command::SetThreshold {
+                threshold_q15: 1000,
+                raise_after: 1,
+                clear_after: 1,
+            }),
+        });
+        // Bad CRC: flip one body bit.
+        let mut payload = [0u8; MAX_PAYLOAD];
+        let n = cobs::decode(&good[..good.len() - 1], &mut payload)
+            .unwrap()
+            .frame_size();
+        let mut p = payload[..n].to_vec();
+        p[5] ^= 0x40;
+        assert!(matches!(
+            decode_payload(&p),
+            Err(DecodeError::BadCrc { .. })
+        ));
+        // Truncated.
+        assert_eq!(
+            decode_payload(&payload[..5]),
+            Err(DecodeError::Truncated { len: 5 })
+        );
+        assert_eq!(
+            decode(&[0x01, 0x01]),
+            Err(DecodeError::Truncated { len: 1 })
+        );
+        // Truncated on the wire = last bytes lost: CRC error or truncated, never a panic.
+        for cut in 1..good.len() - 1 {
+            assert!(decode(&good[..cut]).is_err(), "cut {cut}");
+        }
+        // Wrong version, unknown type, bad length, bad value (CRC good each time).
+        let body = &payload[..n - CRC_LEN];
+        let mut v = body.to_vec();
+        v[0] = 2;
+        assert_eq!(decode(&with_crc(v)), Err(DecodeError::WrongVersion(2)));
+        let mut v = body.to_vec();
+        v[1] = 0x42;
+        assert_eq!(decode(&with_crc(v)), Err(DecodeError::UnknownType(0x42)));
+        let mut v = body.to_vec();
+        v.push(0);
+        assert_eq!(
+            decode(&with_crc(v)),
+            Err(DecodeError::BadLength {
+                msg_type: msg_type::SET_THRESHOLD,
+                len: 5
+            })
+        );
+        let mut v = body.to_vec();
+        v[4] = 0;
+        v[5] = 0; // threshold 0
+        let w = with_crc(v);
+        assert_eq!(
+            decode(&w),
+            Err(DecodeError::BadValue {
+                msg_type: msg_type::SET_THRESHOLD
+            })
+        );
+        let e = error_reply_for(&w, decode(&w).unwrap_err());
+        assert_eq!((e.error, e.msg_type, e.request_seq), (9, 0x13, 9));
+        // Empty, invalid COBS, too long.
+        assert_eq!(decode(&[]), Err(DecodeError::Empty));
+        assert_eq!(decode(&[0]), Err(DecodeError::Empty));
+        assert_eq!(decode(&[0x05, 0x01]), Err(DecodeError::Cobs));
+        assert_eq!(decode(&[0x03, 0x00, 0x01]), Err(DecodeError::Cobs));
+        assert_eq!(decode(&[0x11; 200]), Err(DecodeError::TooLong));
+        // Flags with 17 channels, or a mask bit beyond N.
+        let mut v = vec![VERSION, msg_type::FLAGS, 0, 0, 0, 0, 0, 0, 0, 17];
+        v.extend_from_slice(&[0; 8 + 34]);
+        assert_eq!(
+            decode(&with_crc(v)),
+            Err(DecodeError::BadValue {
+                msg_type: msg_type::FLAGS
+            })
+        );
+        let mut v = vec![VERSION, msg_type::FLAGS, 0, 0, 0, 0, 0, 0, 0, 1, 2, 0];
+        v.extend_from_slice(&[0; 6 + 2]);
+        assert_eq!(
+            decode(&with_crc(v)),
+            Err(DecodeError::BadValue {
+                msg_type: msg_type::FLAGS
+            })
+        );
+    }
+
+    /// Any byte string decodes to a frame or an error, never a panic; the deframer resyncs.
+    #[test]
+    fn fuzz_never_panics_and_deframer_resyncs() {
+        let mut x: u32 = 0x1234_5678;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x
+        };
+        for _ in 0..20_000 {
+            let len = (next() % 80) as usize;
+            let bytes: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+            let _ = decode(&bytes);
+            let _ = decode_payload(&bytes);
+        }
+        // A stream: garbage, a good frame, 300 bytes without a delimiter, a good frame.
+        let frames = all_kinds();
+        let mut stream = vec![0x55, 0x13, 0x00];
+        stream.extend(wire(&frames[0]));
+        stream.extend(std::iter::repeat_n(0x77u8, 300));
+        stream.push(0);
+        stream.extend(wire(&frames[2]));
+        let mut d = Deframer::new();
+        let mut got = Vec::new();
+        for b in stream {
+            if let Some(r) = d.push_decode(b) {
+                got.push(r.map_err(|(e, _)| e));
+            }
+        }
+        assert_eq!(got.len(), 4);
+        assert!(got[0].is_err());
+        assert_eq!(got[1], Ok(frames[0]));
+        assert_eq!(got[2], Err(DecodeError::TooLong));
+        assert_eq!(got[3], Ok(frames[2]));
+    }
+}

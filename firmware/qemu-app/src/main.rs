@@ -1,0 +1,253 @@
+//! The slipguard firmware application on QEMU `-M mps2-an386` (Cortex-M4F).
+//!
+//! Only the board layer differs from `firmware/src`: instead of ADC1 + DMA, [`adc_task`] replays
+//! the recorded trial compiled in (`slipguard_app::replay::CHEEZ_TRIAL`, eagle-shoal
+//! Cheez_100_814_top_3, CDLA-Permissive-1.0) through the emulated sensor, one scan at a time,
+//! and delivers the command script's bytes as the UART would; instead of the UART, frames go to
+//! the host file `qemu-frames.bin` (semihosting). The pipeline, the task structure (one event
+//! queue feeding the inference task, commands and frames in arrival order), the deadline check
+//! and the model blob in its own `.model` section read back through the region's address are the
+//! firmware's. `scripts/qemu-replay.sh` compares the file with the host replay byte for byte.
+//!
+//! Stdout (semihosting) gets a text log and the instruction counts per frame; exit status 0 when
+//! the run completed, 101 on a panic.
+#![no_std]
+#![no_main]
+
+mod time_driver;
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use cortex_m_semihosting::{hprintln, nr, syscall};
+use embassy_executor::Spawner;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_time::Instant;
+use slipguard_app::app::App;
+use slipguard_app::decimate::RATIO;
+use slipguard_app::frontend::{FrameInput, Frontend};
+use slipguard_app::profile::Profile;
+use slipguard_app::replay::{self, CHEEZ_TRIAL, EmulatedSensor, cheez_script};
+use slipguard_app::schedule::Deadline;
+use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
+use static_cell::StaticCell;
+
+/// The sensor profile of this build.
+const PROFILE: Profile = Profile::HAND;
+
+#[repr(C, align(4))]
+struct Aligned<T>(T);
+
+const BLOB_BYTES: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/model.bin"));
+
+/// The default model blob, placed at the start of the MODEL region by `model.x`.
+#[used]
+#[unsafe(link_section = ".model")]
+static MODEL_BLOB: Aligned<[u8; BLOB_BYTES.len()]> =
+    Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/model.bin")));
+
+unsafe extern "C" {
+    static __smodel: u8;
+    static __emodel: u8;
+}
+
+/// The whole MODEL region as the CPU sees it (whatever was loaded there, not the compile-time
+/// contents of [`MODEL_BLOB`]).
+fn model_region() -> &'static [u8] {
+    let start = &raw const __smodel;
+    let end = &raw const __emodel;
+    let len = (end as usize).saturating_sub(start as usize);
+    // SAFETY: the linker script defines the two symbols as the bounds of the MODEL region,
+    // which is flash (read-only, always mapped) for the whole run.
+    unsafe { core::slice::from_raw_parts(start, len) }
+}
+
+/// What the inference task receives, in arrival order.
+enum Event {
+    /// Bytes from the (emulated) UART.
+    Rx(heapless::Vec<u8, 32>),
+    /// One frame's input and when it became available (µs).
+    Frame(FrameInput, u64),
+    /// The recorded trial is over.
+    End,
+}
+
+static EVENTS: Channel<CriticalSectionRawMutex, Event, 4> = Channel::new();
+static APP: StaticCell<App<'static>> = StaticCell::new();
+/// Frames the ADC side could not queue (none here: the emulation waits instead).
+static SKIPPED: AtomicU32 = AtomicU32::new(0);
+
+/// Host file for the frames (semihosting SYS_OPEN / SYS_WRITE).
+struct HostFile(usize);
+
+impl HostFile {
+    fn create(name: &str) -> Option<Self> {
+        let mut path = [0u8; 64];
+        let n = name.len().min(63);
+        path[..n].copy_from_slice(&name.as_bytes()[..n]);
+        // SAFETY: a semihosting call with a NUL-terminated path, a mode and the path length.
+        let fd = unsafe { syscall!(OPEN, path.as_ptr(), nr::open::W_TRUNC_BINARY, n) } as isize;
+        (fd >= 0).then_some(Self(fd as usize))
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        // SAFETY: semihosting write of a valid buffer to an fd the host opened.
+        unsafe { syscall!(WRITE, self.0, bytes.as_ptr(), bytes.len()) };
+    }
+    fn frame(&mut self, f: &Frame) {
+        let mut buf = [0u8; MAX_WIRE];
+        let n = replay::wire(f, &mut buf);
+        self.write(&buf[..n]);
+    }
+}
+
+/// Board layer, sampling side: the recorded trial through the emulated sensor, scan by scan,
+/// into the same front end the firmware's ADC task runs; the command script's bytes arrive just
+/// before the frame they are scheduled for.
+#[embassy_executor::task]
+async fn adc_task() {
+    let mut frontend = Frontend::new(PROFILE);
+    let mut sensor = EmulatedSensor::with_open_wires(PROFILE, cheez_script::OPEN_WIRES);
+    let mut scan = [0u16; 16];
+    for step in 0..CHEEZ_TRIAL.steps() {
+        for _ in 0..RATIO {
+            sensor.scan(&CHEEZ_TRIAL, step, &mut scan);
+            let Some(input) = frontend.push_scan(&scan) else {
+                continue;
+            };
+            for item in cheez_script::SCRIPT
+                .iter()
+                .filter(|s| s.before_frame == input.index)
+            {
+                for chunk in item.bytes.chunks(32) {
+                    let v = heapless::Vec::from_slice(chunk).unwrap_or_default();
+                    EVENTS.send(Event::Rx(v)).await;
+                }
+            }
+            EVENTS
+                .send(Event::Frame(input, Instant::now().as_micros()))
+                .await;
+        }
+        // One DMA half-buffer per step on the board: let the executor run.
+        embassy_futures::yield_now().await;
+    }
+    EVENTS.send(Event::End).await;
+}
+
+/// Instruction statistics of `App::infer` over frames with every channel predicted.
+#[derive(Default)]
+struct Stats {
+    n: u64,
+    sum: u64,
+    min: u64,
+    max: u64,
+}
+
+impl Stats {
+    fn add(&mut self, insns: u64) {
+        if self.n == 0 || insns < self.min {
+            self.min = insns;
+        }
+        self.max = self.max.max(insns);
+        self.sum += insns;
+        self.n += 1;
+    }
+}
+
+#[embassy_executor::main]
+async fn main(spawner: Spawner) {
+    let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
+    time_driver::init(cp.SYST);
+    let app = APP.init_with(|| App::new(PROFILE, model_region()));
+    match app.model() {
+        Ok(m) => {
+            let c = m.config();
+            hprintln!(
+                "slipguard-qemu-app: model {:#010x} '{}' variant {} hidden {} at {} mHz, blob {} bytes (default blob in image: {} bytes)",
+                c.model_id,
+                c.name_str(),
+                c.variant.name(),
+                c.hidden[0],
+                c.sample_rate_mhz,
+                m.blob().len,
+                MODEL_BLOB.0.len()
+            );
+        }
+        Err(e) => hprintln!(
+            "slipguard-qemu-app: MODEL FAULT {:?}: no flags, fault frames only",
+            e
+        ),
+    }
+    let Some(mut out) = HostFile::create("qemu-frames.bin") else {
+        hprintln!("cannot create qemu-frames.bin on the host");
+        exit(2)
+    };
+    spawner.spawn(adc_task().expect("adc task spawned twice"));
+
+    let deadline = Deadline::for_rate_mhz(app.rate_mhz());
+    let mut deframer = Deframer::new();
+    let mut stats = Stats::default();
+    let mut frames = 0u32;
+    let mut skipped_seen = 0;
+    loop {
+        match EVENTS.receive().await {
+            Event::Rx(bytes) => replay::receive(app, &mut deframer, &bytes, |f| {
+                out.frame(f);
+                frames += 1;
+            }),
+            Event::Frame(input, available_us) => {
+                let skipped = SKIPPED.load(Ordering::Relaxed);
+                while skipped_seen != skipped {
+                    app.note_skipped();
+                    skipped_seen += 1;
+                }
+                let c0 = time_driver::cycles();
+                let r = app.infer(&input);
+                let c1 = time_driver::cycles();
+                let late = deadline.is_late(available_us, Instant::now().as_micros());
+                if let Some(f) = app.emit(&r, late) {
+                    out.frame(&f);
+                    frames += 1;
+                }
+                if input.fault == 0 && app.model().is_ok() {
+                    stats.add((c1 - c0) * time_driver::INSNS_PER_CYCLE);
+                }
+            }
+            Event::End => break,
+        }
+    }
+    hprintln!(
+        "slipguard-qemu-app: {} frames written, {} overruns, {} skipped",
+        frames,
+        app.overruns(),
+        app.skipped()
+    );
+    if let Some(mean) = stats.sum.checked_div(stats.n) {
+        hprintln!(
+            "insns per {}-channel frame (App::infer): mean {} min {} max {} over {} frames (±40)",
+            PROFILE.channels,
+            mean,
+            stats.min,
+            stats.max,
+            stats.n
+        );
+    }
+    exit(0)
+}
+
+/// Ends the QEMU run with `code` (semihosting SYS_EXIT_EXTENDED).
+fn exit(code: i32) -> ! {
+    const SYS_EXIT_EXTENDED: usize = 0x20;
+    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x2_0026;
+    let block: [usize; 2] = [ADP_STOPPED_APPLICATION_EXIT, code as usize];
+    // SAFETY: a semihosting call with a valid two-word parameter block; QEMU exits here.
+    unsafe { cortex_m_semihosting::syscall(SYS_EXIT_EXTENDED, &block) };
+    loop {
+        cortex_m::asm::bkpt();
+    }
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    hprintln!("PANIC: {}", info);
+    exit(101)
+}

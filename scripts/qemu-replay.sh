@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# Byte-for-byte check of the emulated firmware against the host replay (issue 6, item 6).
+#
+# 1. Builds firmware/qemu-app (the firmware application with the recorded-trial board layer) and
+#    runs it under QEMU mps2-an386; it writes every frame it sends to qemu-frames.bin (semihosting).
+# 2. Runs the host replay of the same trial and command script through the same portable logic
+#    (`cargo run -p slipguard-app --example replay_cheez`).
+# 3. Compares the two byte for byte; then repeats with a corrupted model blob loaded into the MODEL
+#    region in place of the built-in one (as re-flashing sector 11 would), where both sides must
+#    send fault frames and no flags.
+# Exit status 0 when both comparisons match, 1 on a mismatch, else the failing command's status.
+# Works from any directory. Env: QEMU_REPLAY_TIMEOUT (seconds, default 300), KEEP_DIR=1 keeps the files.
+set -euo pipefail
+
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+timeout_s="${QEMU_REPLAY_TIMEOUT:-300}"
+work="$(mktemp -d)"
+if [ "${KEEP_DIR:-0}" != 1 ]; then trap 'rm -rf "$work"' EXIT; else echo "qemu-replay: files in $work"; fi
+
+(cd "$root/firmware/qemu-app" && cargo build --release)
+elf="${CARGO_TARGET_DIR:-$root/firmware/qemu-app/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
+(cd "$root" && cargo build -q -p slipguard-app --example replay_cheez)
+
+qemu() { # qemu ELF [extra args…]: runs in $work, output file qemu-frames.bin
+  local elf="$1"
+  shift
+  rm -f "$work/qemu-frames.bin"
+  (cd "$work" && timeout --kill-after=10 "$timeout_s" qemu-system-arm -M mps2-an386 -nographic \
+    -semihosting-config enable=on,target=native -icount shift=0,align=off,sleep=off \
+    -kernel "$elf" "$@" </dev/null)
+}
+
+compare() { # compare NAME HOST QEMU
+  if cmp -s "$2" "$3"; then
+    echo "qemu-replay: $1: QEMU build and host replay identical ($(wc -c <"$2") bytes)"
+  else
+    echo "qemu-replay: $1: MISMATCH between the host replay and the QEMU build" >&2
+    cmp "$2" "$3" >&2 || true
+    exit 1
+  fi
+}
+
+# 1. The built-in model blob.
+qemu "$elf"
+mv "$work/qemu-frames.bin" "$work/qemu.bin"
+(cd "$root" && cargo run -q -p slipguard-app --example replay_cheez >"$work/host.bin")
+compare "golden model" "$work/host.bin" "$work/qemu.bin"
+
+# 2. A corrupted blob (one flipped bit inside a tensor) in the MODEL region.
+golden="$root/firmware/core/tests/fixtures/bench/model.bin"
+python3 - "$golden" "$work/corrupt.bin" <<'PY'
+import sys
+b = bytearray(open(sys.argv[1], 'rb').read())
+b[5000] ^= 0x10
+open(sys.argv[2], 'wb').write(b)
+PY
+arm-none-eabi-objcopy --remove-section .model "$elf" "$work/no-model.elf" 2>/dev/null
+qemu "$work/no-model.elf" -device "loader,file=$work/corrupt.bin,addr=0x00300000"
+mv "$work/qemu-frames.bin" "$work/qemu-corrupt.bin"
+(cd "$root" && cargo run -q -p slipguard-app --example replay_cheez -- "$work/corrupt.bin" --expect-fault >"$work/host-corrupt.bin")
+compare "corrupted model blob" "$work/host-corrupt.bin" "$work/qemu-corrupt.bin"
