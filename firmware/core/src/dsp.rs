@@ -65,11 +65,22 @@ const ASM_BLOCKS: usize = 11;
 /// Returns the number of words written, `2·ceil(v.len() / 4)`, less if `out` is too short
 /// (whole groups only).
 pub fn permute_q15(v: &[i16], out: &mut [u32]) -> usize {
-    let lo = |x: Option<&i16>| x.map_or(0, |&x| x as u16 as u32);
+    let lo = |x: i16| x as u16 as u32;
     let mut n = 0;
-    for (g, o) in v.chunks(4).zip(out.chunks_exact_mut(2)) {
-        o[0] = lo(g.first()) | lo(g.get(2)) << 16;
-        o[1] = lo(g.get(1)) | lo(g.get(3)) << 16;
+    let mut groups = v.chunks_exact(4);
+    let mut words = out.chunks_exact_mut(2);
+    // Whole groups: two PKHBT/PKHTB-like merges each.
+    for (g, o) in (&mut groups).zip(&mut words) {
+        o[0] = lo(g[0]) | lo(g[2]) << 16;
+        o[1] = lo(g[1]) | lo(g[3]) << 16;
+        n += 2;
+    }
+    // A short last group, zero-padded (if `out` still has room).
+    let g = groups.remainder();
+    if let (false, Some(o)) = (g.is_empty(), words.next()) {
+        let at = |i: usize| g.get(i).map_or(0, |&x| lo(x));
+        o[0] = at(0) | at(2) << 16;
+        o[1] = at(1) | at(3) << 16;
         n += 2;
     }
     n
@@ -129,9 +140,128 @@ pub fn dot_rows_i8_q15(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) {
     dot_rows_i8_q15_portable(w, stride, act, out)
 }
 
+/// Weight words per LSTM row that [`lstm_gate_sums`] runs in assembly: x part (≥ MAX_INPUT / 4)
+/// and h part (≥ MAX_HIDDEN / 4).
+pub const MAX_ASM_X_WORDS: usize = 3 * ASM_X_BLOCKS + 2;
+/// See [`MAX_ASM_X_WORDS`].
+pub const MAX_ASM_H_WORDS: usize = 3 * ASM_BLOCKS + 2;
+/// Unrolled 3-word blocks of the x part in the LSTM kernel.
+const ASM_X_BLOCKS: usize = 1;
+
+/// The reference of [`lstm_gate_sums`]: `out[r] = [Σ_k w[r·stride + k]·x[k],
+/// Σ_k w[hh_offset + r·stride + k]·h[k]]`, x and h in [`permute_q15`]'s order, with the row
+/// semantics of [`dot_rows_i8_q15_portable`] (the two sums are exactly its results for `w` and
+/// for `w[hh_offset..]`).
+pub fn lstm_gate_sums_portable(
+    w: &[i8],
+    stride: usize,
+    hh_offset: usize,
+    x: &[u32],
+    h: &[u32],
+    out: &mut [[i32; 2]],
+) {
+    for (r, o) in out.iter_mut().enumerate() {
+        *o = gate_row(w, stride, hh_offset, x, h, r);
+    }
+}
+
+/// Row `r` of [`lstm_gate_sums_portable`].
+#[inline]
+fn gate_row(w: &[i8], stride: usize, hh_offset: usize, x: &[u32], h: &[u32], r: usize) -> [i32; 2] {
+    fn row(w: &[i8], r: usize, stride: usize) -> &[i8] {
+        r.checked_mul(stride)
+            .and_then(|s| w.get(s..))
+            .unwrap_or(&[])
+    }
+    let w_hh = w.get(hh_offset..).unwrap_or(&[]);
+    [
+        dot_i8_q15_permuted(row(w, r, stride), x),
+        dot_i8_q15_permuted(row(w_hh, r, stride), h),
+    ]
+}
+
+/// Both dot products of every LSTM gate row in one pass, into uninitialised memory: the same
+/// numbers as [`lstm_gate_sums_portable`], returned as the initialised `out`.
+///
+/// A blob's LSTM row is `[W_ih row (hh_offset bytes) | W_hh row]` and rows follow each other,
+/// so when `hh_offset = 4·(x.len() / 2)` and `stride = hh_offset + 4·(h.len() / 2)` the weights
+/// are one contiguous stream. Then, on a Cortex-M with the DSP extension, with `w` 4-byte aligned,
+/// every row inside `w`, at most [`MAX_ASM_X_WORDS`] and [`MAX_ASM_H_WORDS`] weight words per
+/// part, the assembly kernel runs (one call for all rows: per row the x part, then the h part,
+/// each a computed jump into unrolled SXTB16/SMLAD blocks); otherwise the portable code.
+pub fn lstm_gate_sums<'o>(
+    w: &[i8],
+    stride: usize,
+    hh_offset: usize,
+    x: &[u32],
+    h: &[u32],
+    out: &'o mut [core::mem::MaybeUninit<[i32; 2]>],
+) -> &'o mut [[i32; 2]] {
+    #[cfg(slipguard_dsp)]
+    let done = arm::lstm_rows(w, stride, hh_offset, x, h, out);
+    #[cfg(not(slipguard_dsp))]
+    let done = false;
+    if !done {
+        for (r, o) in out.iter_mut().enumerate() {
+            o.write(gate_row(w, stride, hh_offset, x, h, r));
+        }
+    }
+    // SAFETY: every element of `out` has been written, by the kernel (see `arm::lstm_rows`:
+    // it returns true only after writing all of them) or by the loop above; `MaybeUninit<T>`
+    // has the layout of `T`, and the returned borrow keeps `out` (exclusively) borrowed.
+    unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i32; 2]>(), out.len()) }
+}
+
 #[cfg(slipguard_dsp)]
 mod arm {
-    use super::ASM_BLOCKS;
+    use super::{ASM_BLOCKS, ASM_X_BLOCKS};
+    use core::mem::MaybeUninit;
+
+    /// One 3-word block: 12 MACs in 14 instructions, 56 bytes (all 32-bit encodings).
+    macro_rules! BLOCK {
+        () => {
+            "ldmia.w r0!, {{r3, r4, r5}}
+             ldmia.w r1!, {{r6, r7, r8, r9, r10, r11}}
+             sxtb16 r12, r3, ror #8
+             sxtb16 r3, r3
+             smlad r2, r3, r6, r2
+             smlad r2, r12, r7, r2
+             sxtb16 r12, r4, ror #8
+             sxtb16 r4, r4
+             smlad r2, r4, r8, r2
+             smlad r2, r12, r9, r2
+             sxtb16 r12, r5, ror #8
+             sxtb16 r5, r5
+             smlad r2, r5, r10, r2
+             smlad r2, r12, r11, r2"
+        };
+    }
+    /// One leftover word; SMUAD starts the accumulator.
+    macro_rules! STUB1 {
+        () => {
+            "ldr r3, [r0], #4
+             ldrd r6, r7, [r1], #8
+             sxtb16 r12, r3, ror #8
+             sxtb16 r3, r3
+             smuad r2, r3, r6
+             smlad r2, r12, r7, r2"
+        };
+    }
+    /// Two leftover words; SMUAD starts the accumulator.
+    macro_rules! STUB2 {
+        () => {
+            "ldmia.w r0!, {{r3, r4}}
+             ldmia.w r1!, {{r6, r7, r8, r9}}
+             sxtb16 r12, r3, ror #8
+             sxtb16 r3, r3
+             smuad r2, r3, r6
+             smlad r2, r12, r7, r2
+             sxtb16 r12, r4, ror #8
+             sxtb16 r4, r4
+             smlad r2, r4, r8, r2
+             smlad r2, r12, r9, r2"
+        };
+    }
 
     /// What the assembly reads (one pointer in r0; fields at fixed offsets).
     #[repr(C)]
@@ -166,7 +296,11 @@ mod arm {
                 .and_then(|s| s.checked_add(seg))
                 .is_some_and(|end| end <= w.len()),
         };
-        if !fits || words > 3 * ASM_BLOCKS + 2 || stride % 4 != 0 || w.as_ptr() as usize % 4 != 0 {
+        if !fits
+            || words > 3 * ASM_BLOCKS + 2
+            || !stride.is_multiple_of(4)
+            || !(w.as_ptr() as usize).is_multiple_of(4)
+        {
             return false;
         }
         let p = Params {
@@ -304,6 +438,208 @@ mod arm {
             );
         }
     }
+
+    /// What the LSTM kernel reads (one pointer in r0; fields at fixed offsets).
+    #[repr(C)]
+    struct LstmParams {
+        /// +0: first row's first weight word.
+        w: *const i8,
+        /// +4: permuted x.
+        x: *const u32,
+        /// +8: permuted h.
+        h: *const u32,
+        /// +12: first output word.
+        out: *mut i32,
+        /// +16: one past the last output word.
+        out_end: *mut i32,
+        /// +20, +24: x part: 3-word blocks (≤ ASM_X_BLOCKS) and words left (0, 1 or 2).
+        x_blocks: usize,
+        x_rem: usize,
+        /// +28, +32: h part: 3-word blocks (≤ ASM_BLOCKS) and words left (0, 1 or 2).
+        h_blocks: usize,
+        h_rem: usize,
+    }
+
+    /// Runs the LSTM kernel if the arguments suit it (see `lstm_gate_sums`) and returns true
+    /// after writing every element of `out`; returns false, writing nothing, otherwise.
+    #[inline]
+    pub(super) fn lstm_rows(
+        w: &[i8],
+        stride: usize,
+        hh_offset: usize,
+        x: &[u32],
+        h: &[u32],
+        out: &mut [MaybeUninit<[i32; 2]>],
+    ) -> bool {
+        let (xw, hw) = (x.len() / 2, h.len() / 2);
+        let rows = out.len();
+        if rows == 0 {
+            return true;
+        }
+        let contiguous = hh_offset == 4 * xw && stride == hh_offset + 4 * hw;
+        let fits = rows.checked_mul(stride).is_some_and(|end| end <= w.len());
+        if !contiguous
+            || !fits
+            || xw > 3 * ASM_X_BLOCKS + 2
+            || hw > 3 * ASM_BLOCKS + 2
+            || !(w.as_ptr() as usize).is_multiple_of(4)
+        {
+            return false;
+        }
+        let range = out.as_mut_ptr_range();
+        let p = LstmParams {
+            w: w.as_ptr(),
+            x: x.as_ptr(),
+            h: h.as_ptr(),
+            out: range.start.cast::<i32>(),
+            // One past the end of `out`, as i32 words.
+            out_end: range.end.cast::<i32>(),
+            x_blocks: xw / 3,
+            x_rem: xw % 3,
+            h_blocks: hw / 3,
+            h_rem: hw % 3,
+        };
+        // SAFETY: the checks above guarantee that the kernel reads `w[..rows·stride]` (inside
+        // `w`, word-aligned: `w` is and stride = 4·(xw + hw)), `x[..2·xw]` and `h[..2·hw]`
+        // (aligned `[u32]`s), and writes the 2·rows words of `out` (exclusively borrowed, the
+        // layout of [[i32; 2]]); the block counts ≤ their unrolled copies and remainders < 3
+        // keep the computed jumps inside the kernel. It saves and restores r4-r11, lr and sp.
+        unsafe { lstm_kernel(&p) };
+        true
+    }
+
+    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_rows`] checks.
+    #[inline(never)]
+    unsafe fn lstm_kernel(p: &LstmParams) {
+        // Registers as in `kernel`: r0 weight pointer (one stream: x part, h part, next row),
+        // r1 activation pointer, r2 accumulator, r3-r5 weight words, r6-r11 activation words,
+        // r12 scratch, lr output pointer. Stack: [sp] x, [sp+4] x entry, [sp+8] x block entry,
+        // [sp+12] h, [sp+16] h entry, [sp+20] h block entry, [sp+24] out_end.
+        // Entries: a remainder stub (1 or 2 words, starting with SMUAD so that it also clears
+        // the accumulator) or, with no remainder, a stub that clears it; each stub then jumps to
+        // the block entry (the end of the unrolled blocks - blocks · 56 bytes).
+        // SAFETY: see the caller; every memory access is inside the buffers `p` describes.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "sub sp, sp, #28",
+                "ldr r1, [r0, #4]",
+                "str r1, [sp, #0]",
+                "ldr r1, [r0, #8]",
+                "str r1, [sp, #12]",
+                "ldr r1, [r0, #16]",
+                "str r1, [sp, #24]",
+                "movs r3, #56",
+                // x block entry. Every ADR sits on a word boundary (see `kernel`).
+                "ldr r1, [r0, #20]",
+                ".p2align 2",
+                "adr.w r2, 12f",
+                "mls r2, r1, r3, r2",
+                "orr r2, r2, #1",
+                "str r2, [sp, #8]",
+                // h block entry.
+                "ldr r1, [r0, #28]",
+                ".p2align 2",
+                "adr.w r2, 22f",
+                "mls r2, r1, r3, r2",
+                "orr r2, r2, #1",
+                "str r2, [sp, #20]",
+                // x entry by remainder.
+                "ldr r1, [r0, #24]",
+                ".p2align 2",
+                "adr.w r2, 14f",
+                "cmp r1, #1",
+                "bne 31f",
+                ".p2align 2",
+                "adr.w r2, 15f",
+                "31:",
+                "cmp r1, #2",
+                "bne 32f",
+                ".p2align 2",
+                "adr.w r2, 16f",
+                "32:",
+                "orr r2, r2, #1",
+                "str r2, [sp, #4]",
+                // h entry by remainder.
+                "ldr r1, [r0, #32]",
+                ".p2align 2",
+                "adr.w r2, 24f",
+                "cmp r1, #1",
+                "bne 33f",
+                ".p2align 2",
+                "adr.w r2, 25f",
+                "33:",
+                "cmp r1, #2",
+                "bne 34f",
+                ".p2align 2",
+                "adr.w r2, 26f",
+                "34:",
+                "orr r2, r2, #1",
+                "str r2, [sp, #16]",
+                "ldr lr, [r0, #12]",
+                "ldr r0, [r0, #0]",
+                // Row loop: x part.
+                "1:",
+                "ldr r1, [sp, #0]",
+                "ldr pc, [sp, #4]",
+                "11:",
+                ".rept {xblocks}",
+                BLOCK!(),
+                ".endr",
+                "12:",
+                ".if (12b - 11b) != 56 * {xblocks}",
+                ".error \"dsp lstm kernel: unrolled x block is not 56 bytes\"",
+                ".endif",
+                "str r2, [lr], #4",
+                // h part.
+                "ldr r1, [sp, #12]",
+                "ldr pc, [sp, #16]",
+                "21:",
+                ".rept {hblocks}",
+                BLOCK!(),
+                ".endr",
+                "22:",
+                ".if (22b - 21b) != 56 * {hblocks}",
+                ".error \"dsp lstm kernel: unrolled h block is not 56 bytes\"",
+                ".endif",
+                "str r2, [lr], #4",
+                "ldr r12, [sp, #24]",
+                "cmp lr, r12",
+                "bne 1b",
+                "b 9f",
+                // x stubs: none, one, two leftover words.
+                "14:",
+                "movs r2, #0",
+                "ldr pc, [sp, #8]",
+                "15:",
+                STUB1!(),
+                "ldr pc, [sp, #8]",
+                "16:",
+                STUB2!(),
+                "ldr pc, [sp, #8]",
+                // h stubs.
+                "24:",
+                "movs r2, #0",
+                "ldr pc, [sp, #20]",
+                "25:",
+                STUB1!(),
+                "ldr pc, [sp, #20]",
+                "26:",
+                STUB2!(),
+                "ldr pc, [sp, #20]",
+                "9:",
+                "add sp, sp, #28",
+                "pop {{r4-r11, lr}}",
+                xblocks = const ASM_X_BLOCKS,
+                hblocks = const ASM_BLOCKS,
+                inout("r0") p as *const LstmParams => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+    }
 }
 
 #[cfg(test)]
@@ -390,5 +726,27 @@ mod tests {
         let mut short = [0u32; 3];
         assert_eq!(permute_q15(&[1, 2, 3, 4, 5], &mut short), 2);
         assert_eq!(short[..2], [1 | 3 << 16, 2 | 4 << 16]);
+    }
+    #[test]
+    fn lstm_gate_sums_equal_two_row_kernels() {
+        // Contiguous rows (xw = 3, hw = 5), a gapped layout and one too short for its rows.
+        let x: Vec<u32> = (0..6u32).map(|i| i.wrapping_mul(0x9E37_79B9)).collect();
+        let h: Vec<u32> = (0..10u32)
+            .map(|i| i.wrapping_mul(0x85EB_CA6B) ^ 0x8000_7FFF)
+            .collect();
+        let w: Vec<i8> = (0..200).map(|i| (i * 73 + 11) as i8).collect();
+        for (stride, hh, len) in [(32, 12, 160), (40, 16, 200), (32, 12, 100), (0, 0, 0)] {
+            let w = &w[..len];
+            let mut buf = [core::mem::MaybeUninit::uninit(); 5];
+            let got = lstm_gate_sums(w, stride, hh, &x, &h, &mut buf).to_vec();
+            let (mut ax, mut ah) = ([0i32; 5], [0i32; 5]);
+            dot_rows_i8_q15_portable(w, stride, &x, &mut ax);
+            dot_rows_i8_q15_portable(w.get(hh..).unwrap_or(&[]), stride, &h, &mut ah);
+            let want: Vec<[i32; 2]> = ax.iter().zip(&ah).map(|(&a, &b)| [a, b]).collect();
+            assert_eq!(got, want, "stride {stride}, hh {hh}, len {len}");
+            let mut port = [[0i32; 2]; 5];
+            lstm_gate_sums_portable(w, stride, hh, &x, &h, &mut port);
+            assert_eq!(port.to_vec(), want);
+        }
     }
 }

@@ -15,13 +15,15 @@ mod harness;
 mod insns;
 
 use core::hint::black_box;
+use core::mem::MaybeUninit;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::hprintln;
 use slipguard_core::blob::CRC32;
 use slipguard_core::const_math;
 use slipguard_core::decision::p_unstable;
 use slipguard_core::dsp::{
-    MAX_ASM_VALUES, dot_i8_i16, dot_rows_i8_q15, dot_rows_i8_q15_portable, permute_q15,
+    MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, dot_i8_i16, dot_rows_i8_q15,
+    dot_rows_i8_q15_portable, lstm_gate_sums, lstm_gate_sums_portable, permute_q15,
 };
 use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
 use slipguard_core::lstm::{self, LstmState};
@@ -177,6 +179,94 @@ fn check_dsp_kernel() {
     );
 }
 
+/// Rows per call in the LSTM kernel checks.
+const LSTM_ROWS: usize = 3;
+/// Largest row (bytes) in the LSTM kernel checks: both parts at their assembly maximum.
+const LSTM_MAX_ROW: usize = 4 * (MAX_ASM_X_WORDS + MAX_ASM_H_WORDS);
+
+/// LSTM gate rows, word-aligned, plus 4 spare bytes for a misaligned view.
+#[repr(C, align(4))]
+struct LstmRows([i8; LSTM_ROWS * LSTM_MAX_ROW + 4]);
+
+/// The fused LSTM kernel (`lstm_gate_sums`, assembly on this target) against its portable
+/// reference for every x length 0..=MAX_ASM_X_WORDS words and h length 0..=MAX_ASM_H_WORDS
+/// words, on random and extreme data; also the layouts it must leave to the portable code
+/// (gaps between the parts, misaligned weights, too few weights).
+fn check_lstm_kernel() {
+    let mut rng = Rng(0x0bad_cafe);
+    let mut first_bad: Option<(&str, usize, usize)> = None;
+    let mut cases = 0u32;
+    for pattern in 0..3u32 {
+        for xw in 0..=MAX_ASM_X_WORDS {
+            for hw in 0..=MAX_ASM_H_WORDS {
+                let mut w = LstmRows([0; LSTM_ROWS * LSTM_MAX_ROW + 4]);
+                for b in w.0.iter_mut() {
+                    let r = rng.next();
+                    *b = match pattern {
+                        0 => r as i8,
+                        1 => -128,
+                        _ => {
+                            if r & 1 == 0 {
+                                -128
+                            } else {
+                                127
+                            }
+                        }
+                    };
+                }
+                let mut act = [0u32; 2 * (MAX_ASM_X_WORDS + MAX_ASM_H_WORDS)];
+                for a in act.iter_mut() {
+                    let r = rng.next();
+                    *a = match pattern {
+                        0 => r,
+                        1 => 0x8000_8000,
+                        _ => {
+                            (if r & 1 == 0 { 0x8000 } else { 0x7fff })
+                                | (if r & 2 == 0 { 0x8000_0000 } else { 0x7fff_0000 })
+                        }
+                    };
+                }
+                let (x, h) = act.split_at(2 * xw);
+                let h = &h[..2 * hw];
+                let hh = 4 * xw;
+                let stride = hh + 4 * hw;
+                // Contiguous rows (the assembly path), a gap after each part, a misaligned view
+                // and a weight slice one byte too short (both portable).
+                let layouts: [(&str, usize, usize, usize, usize); 4] = [
+                    ("contiguous", 0, stride, hh, LSTM_ROWS * stride),
+                    ("gaps", 0, stride + 4, hh + 4, LSTM_ROWS * (stride + 4)),
+                    ("misaligned", 1, stride, hh, LSTM_ROWS * stride),
+                    (
+                        "short",
+                        0,
+                        stride,
+                        hh,
+                        (LSTM_ROWS * stride).saturating_sub(1),
+                    ),
+                ];
+                for (name, start, stride, hh, len) in layouts {
+                    let len = len.min(LSTM_ROWS * LSTM_MAX_ROW);
+                    let wv = &w.0[start..start + len];
+                    let mut buf = [MaybeUninit::<[i32; 2]>::uninit(); LSTM_ROWS];
+                    let got = lstm_gate_sums(black_box(wv), stride, hh, x, h, &mut buf);
+                    let mut want = [[0i32; 2]; LSTM_ROWS];
+                    lstm_gate_sums_portable(wv, stride, hh, x, h, &mut want);
+                    cases += 1;
+                    if got[..] != want[..] && first_bad.is_none() {
+                        first_bad = Some((name, xw, hw));
+                    }
+                }
+            }
+        }
+    }
+    hprintln!("lstm kernel: {} cases", cases);
+    harness::check_equal(
+        "lstm kernel == portable (first layout, x words, h words)",
+        &first_bad,
+        &None,
+    );
+}
+
 #[entry]
 fn main() -> ! {
     let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
@@ -196,6 +286,7 @@ fn main() -> ! {
     );
 
     check_dsp_kernel();
+    check_lstm_kernel();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,
