@@ -71,10 +71,25 @@ const fn pairs(v: &[i16; ENTRIES]) -> [[i32; 2]; ENTRIES - 1] {
     t
 }
 
+/// An activation's interval table (see [`pairs`]): 512 entries `[lo·2^7 + 2^6, hi - lo]`.
+pub type IntervalTable = [[i32; 2]; ENTRIES - 1];
+
 /// σ intervals (see [`pairs`]).
-static SIGMOID_TABLE: [[i32; 2]; ENTRIES - 1] = pairs(&SIGMOID_VALUES);
+static SIGMOID_TABLE: IntervalTable = pairs(&SIGMOID_VALUES);
 /// tanh intervals (see [`pairs`]).
-static TANH_TABLE: [[i32; 2]; ENTRIES - 1] = pairs(&TANH_VALUES);
+static TANH_TABLE: IntervalTable = pairs(&TANH_VALUES);
+
+/// The interval table of tanh (`true`) or σ (`false`), for [`lookup`] and the assembly gate pass
+/// in [`crate::dsp`].
+pub fn table(tanh: bool) -> &'static IntervalTable {
+    if tanh { &TANH_TABLE } else { &SIGMOID_TABLE }
+}
+
+/// f(x) by the interval table of f: [`sigmoid`] or [`tanh`] for their tables.
+#[inline(always)]
+pub fn lookup(table: &IntervalTable, x: i16) -> i16 {
+    interpolate(table, x)
+}
 
 /// Rounded linear interpolation between values[k] and values[k + 1] (`lo`, `hi`), k the top 9
 /// bits of `x + 32768`, at the position f = the low 7 bits:
@@ -82,7 +97,7 @@ static TANH_TABLE: [[i32; 2]; ENTRIES - 1] = pairs(&TANH_VALUES);
 /// the same number (lo·2^7 is a multiple of 2^7, so it passes through the floor unchanged).
 /// The result lies between lo and hi, so it fits in i16.
 #[inline(always)]
-fn interpolate(table: &[[i32; 2]; ENTRIES - 1], x: i16) -> i16 {
+fn interpolate(table: &IntervalTable, x: i16) -> i16 {
     // (x + 32768) >> 7 = (x >> 7) + 256, in 0..=511 for every i16.
     let k = ((x as i32 >> FRAC_BITS) + 256) as usize;
     let frac = x as i32 & ((1 << FRAC_BITS) - 1); // position in the interval, 0..127 of 128

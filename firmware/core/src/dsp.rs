@@ -28,6 +28,9 @@
 
 #![allow(unsafe_code)]
 
+use crate::activation::IntervalTable;
+use crate::blob::LstmRowParams;
+
 /// Σ w[i]·v[i] over `min(w.len(), v.len())` elements: int8 weights × int16 activations,
 /// accumulated in `i32`.
 ///
@@ -212,9 +215,31 @@ pub fn lstm_gate_sums<'o>(
     unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i32; 2]>(), out.len()) }
 }
 
+/// The gate pass of the LSTM in assembly. From the first row on, while a row's requantisation
+/// shift is in 33..=62: `acc[r][0] = f(z)` with z = `sat16(round((acc[r][0]·mx + acc[r][1]·mh)
+/// / 2^shift) + bias)` and f given by its interval `table` ([`crate::activation::lookup`]).
+/// Returns the number of rows done (0 on targets without the DSP extension); the caller,
+/// `lstm::gate_activations`, does the rest. The same bits as `lstm::gate_activations_portable`:
+/// the rounding is that of `lstm::requant`, t = ⌊z / 2^(shift-1)⌋ from the high word of the
+/// 64-bit sum, then ⌊(t + 1) / 2⌋.
+#[inline]
+pub fn lstm_gate_rows(
+    acc: &mut [[i32; 2]],
+    params: &[LstmRowParams],
+    table: &IntervalTable,
+) -> usize {
+    #[cfg(slipguard_dsp)]
+    return arm::gate_rows(acc, params, table);
+    #[cfg(not(slipguard_dsp))]
+    {
+        let _ = (acc, params, table);
+        0
+    }
+}
+
 #[cfg(slipguard_dsp)]
 mod arm {
-    use super::{ASM_BLOCKS, ASM_X_BLOCKS};
+    use super::{ASM_BLOCKS, ASM_X_BLOCKS, IntervalTable, LstmRowParams};
     use core::mem::MaybeUninit;
 
     /// One 3-word block: 12 MACs in 14 instructions, 56 bytes (all 32-bit encodings).
@@ -437,6 +462,66 @@ mod arm {
                 out("r12") _,
             );
         }
+    }
+
+    /// See `lstm_gate_rows`.
+    #[inline]
+    pub(super) fn gate_rows(
+        acc: &mut [[i32; 2]],
+        params: &[LstmRowParams],
+        table: &IntervalTable,
+    ) -> usize {
+        let n = acc.len().min(params.len());
+        if n == 0 {
+            return 0;
+        }
+        let range = acc[..n].as_mut_ptr_range();
+        // Entry 256 (in bounds): the interval of z = 0; z >> 7 is in -256..=255.
+        let mid: *const [i32; 2] = &table[256];
+        let end: *mut [i32; 2];
+        // SAFETY: the loop reads params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
+        // reads and writes acc[r] for r < n, stopping at `range.end` or at the first row whose
+        // shift is outside 33..=62 (before touching its `acc`); the table index
+        // 256 + (z >> 7) with z a saturated i16 is in 0..=511, inside `table`. It saves and
+        // restores r4-r11 and changes no memory but `acc`.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11}}",
+                "1:",
+                "ldm r2, {{r4, r5, r6, r7}}",
+                "sub r7, r7, #33",
+                "cmp r7, #30",
+                "bhs 2f",
+                "ldrd r8, r9, [r0]",
+                // z = acc_x·mx + acc_h·mh (64 bits); t = hi >> (shift - 33); (t + 1) >> 1.
+                "smull r10, r11, r8, r4",
+                "smlal r10, r11, r9, r5",
+                "asr r11, r11, r7",
+                "add r11, r11, #1",
+                "asr r11, r11, #1",
+                "qadd r11, r11, r6",
+                "ssat r11, #16, r11",
+                // Interval z >> 7 (one LDRD of [lo·2^7 + 2^6, hi - lo]), position z & 127.
+                "asr r8, r11, #7",
+                "add r8, r3, r8, lsl #3",
+                "ldrd r9, r10, [r8]",
+                "and r11, r11, #127",
+                "mla r9, r10, r11, r9",
+                "asr r9, r9, #7",
+                "str r9, [r0], #8",
+                "add r2, r2, #16",
+                "cmp r0, r1",
+                "bne 1b",
+                "2:",
+                "pop {{r4-r11}}",
+                inout("r0") range.start => end,
+                in("r1") range.end,
+                inout("r2") params.as_ptr() => _,
+                in("r3") mid,
+            );
+        }
+        // Rows done: `end` is `range.start` advanced by whole rows, within the range.
+        (end as usize - range.start as usize) / 8
     }
 
     /// What the LSTM kernel reads (one pointer in r0; fields at fixed offsets).

@@ -15,9 +15,9 @@
 //! requantisation ([`LstmRowParams`]). All rounding is to nearest, so the host and the
 //! Cortex-M4 compute the same bits.
 
-use crate::activation::{sigmoid, tanh};
+use crate::activation::{self, sigmoid, tanh};
 use crate::blob::{LstmRowParams, LstmTensors};
-use crate::dsp::{lstm_gate_sums, permute_q15};
+use crate::dsp::{lstm_gate_rows, lstm_gate_sums, permute_q15};
 use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
 use crate::{MAX_HIDDEN, MAX_INPUT};
 use core::mem::MaybeUninit;
@@ -160,9 +160,9 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     let (sig_if, rest) = acc.split_at_mut((2 * hn).min(rows));
     let (cand, sig_o) = rest.split_at_mut(hn.min(rest.len()));
     let params = |from: usize| t.rows.get(from..).unwrap_or(&[]);
-    activate(sig_if, params(0), sigmoid);
-    activate(cand, params(2 * hn), tanh);
-    activate(sig_o, params(3 * hn), sigmoid);
+    gate_activations(sig_if, params(0), false);
+    gate_activations(cand, params(2 * hn), true);
+    gate_activations(sig_o, params(3 * hn), false);
     // Pass 2, unit by unit: the cell update from the four gates i, f, g, o.
     let k = CellShifts::new(t.cell_frac_bits);
     let (c, h) = (&mut state.c[..hn], &mut state.h[..hn]);
@@ -184,9 +184,30 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     }
 }
 
-/// `a[0] = f(requant(p, a[0], a[1]))` for each row's sums `a` and parameters `p`.
-#[inline(always)]
-fn activate(acc: &mut [[i32; 2]], p: &[LstmRowParams], f: impl Fn(i16) -> i16) {
+/// `a[0] = f(requant(p, a[0], a[1]))` for each row's sums `a` and parameters `p`, f = σ or
+/// tanh (`tanh`): a gate's activations (Q0.15) from its rows' dot products. Runs in assembly
+/// ([`crate::dsp::lstm_gate_rows`]) where it can; the rows it leaves (a requantisation shift
+/// outside 33..=62, or every row on other targets) are done here, one at a time.
+pub fn gate_activations(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
+    let table = activation::table(tanh);
+    let mut r = 0;
+    loop {
+        let (a, q) = (
+            acc.get_mut(r..).unwrap_or(&mut []),
+            p.get(r..).unwrap_or(&[]),
+        );
+        r += lstm_gate_rows(a, q, table);
+        let (Some(a), Some(q)) = (acc.get_mut(r), p.get(r)) else {
+            break;
+        };
+        a[0] = activation::lookup(table, requant(q, a[0], a[1])) as i32;
+        r += 1;
+    }
+}
+
+/// The reference of [`gate_activations`], all in Rust.
+pub fn gate_activations_portable(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
+    let f = if tanh { activation::tanh } else { sigmoid };
     for (a, p) in acc.iter_mut().zip(p) {
         a[0] = f(requant(p, a[0], a[1])) as i32;
     }

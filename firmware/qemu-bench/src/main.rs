@@ -18,7 +18,7 @@ use core::hint::black_box;
 use core::mem::MaybeUninit;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::hprintln;
-use slipguard_core::blob::CRC32;
+use slipguard_core::blob::{CRC32, LstmRowParams};
 use slipguard_core::const_math;
 use slipguard_core::decision::p_unstable;
 use slipguard_core::dsp::{
@@ -267,6 +267,65 @@ fn check_lstm_kernel() {
     );
 }
 
+/// The assembly gate pass (`lstm::gate_activations`) against the Rust one, σ and tanh, on
+/// random sums and parameters: shifts 33..=62 (assembly) mixed with 1..=32 (the rows the
+/// assembly leaves to Rust), extreme sums, biases and multipliers.
+fn check_gate_pass() {
+    let mut rng = Rng(0x5eed_1234);
+    let mut first_bad = None;
+    for round in 0..40u32 {
+        let mut acc = [[0i32; 2]; 64];
+        let mut params = [LstmRowParams {
+            mx: 0,
+            mh: 0,
+            bias_q12: 0,
+            shift: 33,
+        }; 64];
+        for (i, (a, p)) in acc.iter_mut().zip(params.iter_mut()).enumerate() {
+            let edge = |r: u32, bits: u32| -> i32 {
+                match r % 5 {
+                    0 => (1 << (bits - 1)) - 1,
+                    1 => -(1 << (bits - 1)),
+                    _ => (rng_bits(r) as i32) >> (32 - bits),
+                }
+            };
+            *a = [edge(rng.next(), 26), edge(rng.next(), 29)];
+            p.mx = (rng.next() >> 1) as i32;
+            p.mh = (rng.next() >> 1) as i32;
+            p.bias_q12 = if i % 7 == 0 {
+                rng.next() as i32
+            } else {
+                (rng.next() as i32) >> 17
+            };
+            // Mostly the assembly's range; every few rows (more in later rounds) a small shift.
+            p.shift = if rng.next() % 8 < round % 4 {
+                1 + (rng.next() % 32) as i32
+            } else {
+                33 + (rng.next() % 30) as i32
+            };
+        }
+        for tanh in [false, true] {
+            let mut got = acc;
+            let mut want = acc;
+            lstm::gate_activations(black_box(&mut got), &params, tanh);
+            lstm::gate_activations_portable(&mut want, &params, tanh);
+            if got != want && first_bad.is_none() {
+                first_bad = Some((round, tanh));
+            }
+        }
+    }
+    harness::check_equal(
+        "lstm gate pass asm == portable (first round, tanh)",
+        &first_bad,
+        &None,
+    );
+}
+
+/// Spreads a random word's bits (a helper for [`check_gate_pass`]).
+fn rng_bits(r: u32) -> u32 {
+    r.wrapping_mul(0x9E37_79B9)
+}
+
 #[entry]
 fn main() -> ! {
     let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
@@ -287,6 +346,7 @@ fn main() -> ! {
 
     check_dsp_kernel();
     check_lstm_kernel();
+    check_gate_pass();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,
