@@ -71,7 +71,7 @@ const fn pairs(v: &[i16; ENTRIES]) -> [[i32; 2]; ENTRIES - 1] {
     t
 }
 
-/// An activation's interval table (see [`pairs`]): 512 entries `[lo·2^7 + 2^6, hi - lo]`.
+/// An activation's interval table: 512 entries `[lo·2^7 + 2^6, hi - lo]`.
 pub type IntervalTable = [[i32; 2]; ENTRIES - 1];
 
 /// σ intervals (see [`pairs`]).

@@ -148,7 +148,8 @@ pub fn dot_rows_i8_q15(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) {
 pub const MAX_ASM_X_WORDS: usize = 3 * ASM_X_BLOCKS + 2;
 /// See [`MAX_ASM_X_WORDS`].
 pub const MAX_ASM_H_WORDS: usize = 3 * ASM_BLOCKS + 2;
-/// Unrolled 3-word blocks of the x part in the LSTM kernel.
+/// 3-word blocks of the x part in the LSTM kernel: one (a SMUAD copy entered first, when
+/// there is no remainder, and a SMLAD copy after a remainder stub).
 const ASM_X_BLOCKS: usize = 1;
 
 /// The reference of [`lstm_gate_sums`]: `out[r] = [Σ_k w[r·stride + k]·x[k],
@@ -250,6 +251,25 @@ mod arm {
              sxtb16 r12, r3, ror #8
              sxtb16 r3, r3
              smlad r2, r3, r6, r2
+             smlad r2, r12, r7, r2
+             sxtb16 r12, r4, ror #8
+             sxtb16 r4, r4
+             smlad r2, r4, r8, r2
+             smlad r2, r12, r9, r2
+             sxtb16 r12, r5, ror #8
+             sxtb16 r5, r5
+             smlad r2, r5, r10, r2
+             smlad r2, r12, r11, r2"
+        };
+    }
+    /// `BLOCK` starting the accumulator with SMUAD.
+    macro_rules! BLOCK_FIRST {
+        () => {
+            "ldmia.w r0!, {{r3, r4, r5}}
+             ldmia.w r1!, {{r6, r7, r8, r9, r10, r11}}
+             sxtb16 r12, r3, ror #8
+             sxtb16 r3, r3
+             smuad r2, r3, r6
              smlad r2, r12, r7, r2
              sxtb16 r12, r4, ror #8
              sxtb16 r4, r4
@@ -488,7 +508,7 @@ mod arm {
             core::arch::asm!(
                 "push {{r4-r11}}",
                 "1:",
-                "ldm r2, {{r4, r5, r6, r7}}",
+                "ldm r2!, {{r4, r5, r6, r7}}",
                 "sub r7, r7, #33",
                 "cmp r7, #30",
                 "bhs 2f",
@@ -509,7 +529,6 @@ mod arm {
                 "mla r9, r10, r11, r9",
                 "asr r9, r9, #7",
                 "str r9, [r0], #8",
-                "add r2, r2, #16",
                 "cmp r0, r1",
                 "bne 1b",
                 "2:",
@@ -602,7 +621,9 @@ mod arm {
         // [sp+12] h, [sp+16] h entry, [sp+20] h block entry, [sp+24] out_end.
         // Entries: a remainder stub (1 or 2 words, starting with SMUAD so that it also clears
         // the accumulator) or, with no remainder, a stub that clears it; each stub then jumps to
-        // the block entry (the end of the unrolled blocks - blocks · 56 bytes).
+        // the block entry (h: the end of the unrolled blocks - blocks · 56 bytes; x: the SMLAD
+        // copy of its one block). An x part of exactly one block (9 to 12 inputs) enters a
+        // SMUAD copy of the block directly, which falls through to the store.
         // SAFETY: see the caller; every memory access is inside the buffers `p` describes.
         unsafe {
             core::arch::asm!(
@@ -615,34 +636,41 @@ mod arm {
                 "ldr r1, [r0, #16]",
                 "str r1, [sp, #24]",
                 "movs r3, #56",
-                // x block entry. Every ADR sits on a word boundary (see `kernel`).
-                "ldr r1, [r0, #20]",
-                ".p2align 2",
-                "adr.w r2, 12f",
-                "mls r2, r1, r3, r2",
-                "orr r2, r2, #1",
-                "str r2, [sp, #8]",
-                // h block entry.
+                // h block entry. Every ADR sits on a word boundary (see `kernel`).
                 "ldr r1, [r0, #28]",
                 ".p2align 2",
                 "adr.w r2, 22f",
                 "mls r2, r1, r3, r2",
                 "orr r2, r2, #1",
                 "str r2, [sp, #20]",
-                // x entry by remainder.
-                "ldr r1, [r0, #24]",
+                // x block entry after a stub: the SMLAD copy of the block, or none.
+                "ldr r1, [r0, #20]",
+                ".p2align 2",
+                "adr.w r2, 12f",
+                "cbz r1, 35f",
+                ".p2align 2",
+                "adr.w r2, 18f",
+                "35:",
+                "orr r2, r2, #1",
+                "str r2, [sp, #8]",
+                // x entry: no remainder: the SMUAD block (falls through to the store) or
+                // the clearing stub; else the stub for 1 or 2 words.
+                "ldr r3, [r0, #24]",
+                "cbnz r3, 36f",
                 ".p2align 2",
                 "adr.w r2, 14f",
-                "cmp r1, #1",
-                "bne 31f",
+                "cbz r1, 37f",
+                ".p2align 2",
+                "adr.w r2, 11f",
+                "b 37f",
+                "36:",
                 ".p2align 2",
                 "adr.w r2, 15f",
-                "31:",
-                "cmp r1, #2",
-                "bne 32f",
+                "cmp r3, #1",
+                "beq 37f",
                 ".p2align 2",
                 "adr.w r2, 16f",
-                "32:",
+                "37:",
                 "orr r2, r2, #1",
                 "str r2, [sp, #4]",
                 // h entry by remainder.
@@ -668,13 +696,8 @@ mod arm {
                 "ldr r1, [sp, #0]",
                 "ldr pc, [sp, #4]",
                 "11:",
-                ".rept {xblocks}",
-                BLOCK!(),
-                ".endr",
+                BLOCK_FIRST!(),
                 "12:",
-                ".if (12b - 11b) != 56 * {xblocks}",
-                ".error \"dsp lstm kernel: unrolled x block is not 56 bytes\"",
-                ".endif",
                 "str r2, [lr], #4",
                 // h part.
                 "ldr r1, [sp, #12]",
@@ -695,13 +718,17 @@ mod arm {
                 // x stubs: none, one, two leftover words.
                 "14:",
                 "movs r2, #0",
-                "ldr pc, [sp, #8]",
+                "b 12b",
                 "15:",
                 STUB1!(),
                 "ldr pc, [sp, #8]",
                 "16:",
                 STUB2!(),
                 "ldr pc, [sp, #8]",
+                // The x block after a stub.
+                "18:",
+                BLOCK!(),
+                "b 12b",
                 // h stubs.
                 "24:",
                 "movs r2, #0",
@@ -715,7 +742,6 @@ mod arm {
                 "9:",
                 "add sp, sp, #28",
                 "pop {{r4-r11, lr}}",
-                xblocks = const ASM_X_BLOCKS,
                 hblocks = const ASM_BLOCKS,
                 inout("r0") p as *const LstmParams => _,
                 out("r1") _,
