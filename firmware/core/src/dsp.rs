@@ -30,6 +30,7 @@
 
 use crate::activation::IntervalTable;
 use crate::blob::LstmRowParams;
+use crate::lstm::{CellShifts, LstmState};
 
 /// Σ w[i]·v[i] over `min(w.len(), v.len())` elements: int8 weights × int16 activations,
 /// accumulated in `i32`.
@@ -238,9 +239,33 @@ pub fn lstm_gate_rows(
     }
 }
 
+/// The LSTM cell update in assembly, for units 0..hn from the gate activations
+/// `gates[g·hn + j][0]` (gate order i, f, g, o, low 16 bits): the same bits as
+/// `lstm::cell_update_portable` (the cell → Q3.12 conversion in its `q_mul`/`q_add` form, tanh
+/// by its interval `table`). Returns false, changing nothing, where it does not run (other
+/// targets, `hn` > MAX_HIDDEN or fewer than 4·hn gates); true after updating every unit.
+#[inline]
+pub fn lstm_cell_update(
+    gates: &[[i32; 2]],
+    hn: usize,
+    state: &mut LstmState,
+    k: CellShifts,
+    table: &IntervalTable,
+) -> bool {
+    #[cfg(slipguard_dsp)]
+    return arm::cell_update(gates, hn, state, k, table);
+    #[cfg(not(slipguard_dsp))]
+    {
+        let _ = (gates, hn, state, k, table);
+        false
+    }
+}
+
 #[cfg(slipguard_dsp)]
 mod arm {
-    use super::{ASM_BLOCKS, ASM_X_BLOCKS, IntervalTable, LstmRowParams};
+    use super::{ASM_BLOCKS, ASM_X_BLOCKS, CellShifts, IntervalTable, LstmRowParams, LstmState};
+    use crate::MAX_HIDDEN;
+    use crate::lstm::C_OFFSET;
     use core::mem::MaybeUninit;
 
     /// One 3-word block: 12 MACs in 14 instructions, 56 bytes (all 32-bit encodings).
@@ -541,6 +566,99 @@ mod arm {
         }
         // Rows done: `end` is `range.start` advanced by whole rows, within the range.
         (end as usize - range.start as usize) / 8
+    }
+
+    /// What the cell update reads, in the order of its LDM (r0-r5, r7-r10).
+    #[repr(C)]
+    struct CellParams {
+        gi: *const [i32; 2],
+        off: usize,
+        go: *const [i32; 2],
+        h: *mut i16,
+        h_end: *mut i16,
+        table: *const [i32; 2],
+        ig_half: i32,
+        ig_shift: u32,
+        q_mul: i32,
+        q_add: i32,
+    }
+
+    /// See `lstm_cell_update`.
+    #[inline]
+    pub(super) fn cell_update(
+        gates: &[[i32; 2]],
+        hn: usize,
+        state: &mut LstmState,
+        k: CellShifts,
+        table: &IntervalTable,
+    ) -> bool {
+        if hn > MAX_HIDDEN || gates.len() < 4 * hn {
+            return false;
+        }
+        if hn == 0 {
+            return true;
+        }
+        let h = state.h[..hn].as_mut_ptr_range();
+        let p = CellParams {
+            gi: gates.as_ptr(),
+            off: 8 * hn,
+            go: gates[3 * hn..].as_ptr(),
+            h: h.start,
+            h_end: h.end,
+            table: &table[256],
+            ig_half: k.ig_half,
+            ig_shift: k.ig_shift,
+            q_mul: k.q_mul,
+            q_add: k.q_add,
+        };
+        // SAFETY: for j < hn the loop reads gates[j], gates[hn + j], gates[2·hn + j] and
+        // gates[3·hn + j] (inside `gates`: 4·hn ≤ len), reads and writes state.h[j] and
+        // state.c[j] (c at C_OFFSET bytes after h in the repr(C) struct, hn ≤ MAX_HIDDEN), and
+        // reads the table at 256 + (q >> 7) with q a saturated i16: 0..=511. It saves and
+        // restores r4-r11 and lr.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "ldm r0, {{r0, r1, r2, r3, r4, r5, r7, r8, r9, r10}}",
+                "mov r6, #16384",
+                "1:",
+                // c' = sat16(((f·c + 2^14) >> 15) + ((i·g + half) >> ig_shift)).
+                "ldr r11, [r0, r1]",
+                "ldrsh r12, [r3, #{coff}]",
+                "smlabb r11, r11, r12, r6",
+                "ldr r12, [r0, r1, lsl #1]",
+                "ldr lr, [r0], #8",
+                "smlabb r12, lr, r12, r7",
+                "asr r12, r12, r8",
+                "add r12, r12, r11, asr #15",
+                "ssat r12, #16, r12",
+                "strh r12, [r3, #{coff}]",
+                // q = sat16((c'·q_mul + q_add) >> 3), Q3.12; tanh(q) by the table.
+                "smlabb r12, r12, r9, r10",
+                "ssat r12, #16, r12, asr #3",
+                "asr r11, r12, #7",
+                "add r11, r5, r11, lsl #3",
+                "ldrd r11, lr, [r11]",
+                "and r12, r12, #127",
+                "mla r11, lr, r12, r11",
+                "asr r11, r11, #7",
+                // h' = sat16((o·tanh(c') + 2^14) >> 15).
+                "ldr r12, [r2], #8",
+                "smlabb r11, r12, r11, r6",
+                "ssat r11, #16, r11, asr #15",
+                "strh r11, [r3], #2",
+                "cmp r3, r4",
+                "bne 1b",
+                "pop {{r4-r11, lr}}",
+                coff = const C_OFFSET,
+                inout("r0") &p as *const CellParams => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+        true
     }
 
     /// What the LSTM kernel reads (one pointer in r0; fields at fixed offsets).

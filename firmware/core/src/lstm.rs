@@ -17,13 +17,15 @@
 
 use crate::activation::{self, sigmoid, tanh};
 use crate::blob::{LstmRowParams, LstmTensors};
-use crate::dsp::{lstm_gate_rows, lstm_gate_sums, permute_q15};
+use crate::dsp::{lstm_cell_update, lstm_gate_rows, lstm_gate_sums, permute_q15};
 use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
 use crate::{MAX_HIDDEN, MAX_INPUT};
 use core::mem::MaybeUninit;
 
-/// One LSTM's recurrent state for one channel.
+/// One LSTM's recurrent state for one channel. `repr(C)`: the assembly cell update
+/// ([`crate::dsp::lstm_cell_update`]) finds c at a fixed offset from h.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[repr(C)]
 pub struct LstmState {
     /// Hidden state h, Q0.15. Entries past the model's H stay 0 (the padded kernel relies on it).
     pub h: [i16; MAX_HIDDEN],
@@ -44,6 +46,10 @@ impl LstmState {
         *self = Self::new();
     }
 }
+
+/// Bytes from `h[j]` to `c[j]` in [`LstmState`].
+pub const C_OFFSET: usize = 2 * MAX_HIDDEN;
+const _: () = assert!(core::mem::offset_of!(LstmState, c) == C_OFFSET);
 
 impl Default for LstmState {
     fn default() -> Self {
@@ -81,22 +87,29 @@ fn requant_wide(p: &LstmRowParams, z: i64) -> i16 {
 
 /// Loop-invariant shifts of the cell update, from the cell format C (clamped to 1..=15, the
 /// range the blob parser admits).
-#[derive(Clone, Copy)]
-struct CellShifts {
+#[derive(Clone, Copy, Debug)]
+pub struct CellShifts {
     /// i·g is Q0.30; shifting it right by 30 - C (15..=29), rounded, gives Q(15-C).C.
-    ig_shift: u32,
+    pub ig_shift: u32,
     /// 2^(ig_shift - 1).
-    ig_half: i32,
+    pub ig_half: i32,
     /// Cell → Q3.12 for tanh: `sat16(((c << up) + half) >> down)`; for C > 12 that is a
     /// rounded right shift by C - 12 (up = 0), for C ≤ 12 a saturated left shift by 12 - C
     /// (down = 0, half = 0).
     up: u32,
     half: i32,
     down: u32,
+    /// The same conversion as `sat16((c·q_mul + q_add) >> 3)` (the assembly's form): for C > 12,
+    /// q_mul = 2^(3 - down), q_add = 4, since ⌊(c·2^(3-d) + 2^2) / 2^3⌋ = ⌊(c + 2^(d-1)) / 2^d⌋;
+    /// for C ≤ 12, q_mul = 2^(up + 3) ≤ 2^14, q_add = 0. |c·q_mul| ≤ 2^29.
+    pub q_mul: i32,
+    /// See `q_mul`.
+    pub q_add: i32,
 }
 
 impl CellShifts {
-    fn new(cell_frac_bits: u32) -> Self {
+    /// The shifts for cell format C = `cell_frac_bits`.
+    pub fn new(cell_frac_bits: u32) -> Self {
         let cb = cell_frac_bits.clamp(1, 15);
         let ig_shift = 30 - cb;
         let (up, down) = if cb > 12 { (0, cb - 12) } else { (12 - cb, 0) };
@@ -106,6 +119,8 @@ impl CellShifts {
             up,
             half: if down > 0 { 1 << (down - 1) } else { 0 },
             down,
+            q_mul: 1 << (up + 3 - down),
+            q_add: if down > 0 { 4 } else { 0 },
         }
     }
 }
@@ -165,22 +180,37 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     gate_activations(sig_o, params(3 * hn), false);
     // Pass 2, unit by unit: the cell update from the four gates i, f, g, o.
     let k = CellShifts::new(t.cell_frac_bits);
-    let (c, h) = (&mut state.c[..hn], &mut state.h[..hn]);
     if rows == 4 * hn {
         // Every row present (always, for a validated blob).
-        let (ai, rest) = acc.split_at(hn);
-        let (af, rest) = rest.split_at(hn);
-        let (ag, ao) = rest.split_at(hn);
-        let gates = ai.iter().zip(af).zip(ag).zip(ao);
-        for ((((i, f), g), o), (c, h)) in gates.zip(c.iter_mut().zip(h.iter_mut())) {
-            cell_unit(k, [i[0], f[0], g[0], o[0]].map(|v| v as i16), c, h);
-        }
+        cell_update(acc, hn, state, k);
     } else {
         // Some rows missing (inconsistent tensors): their gates are 0.
+        let (c, h) = (&mut state.c[..hn], &mut state.h[..hn]);
         for (j, (c, h)) in c.iter_mut().zip(h.iter_mut()).enumerate() {
             let g = |n: usize| acc.get(n * hn + j).map_or(0, |a| a[0] as i16);
             cell_unit(k, [g(0), g(1), g(2), g(3)], c, h);
         }
+    }
+}
+
+/// The cell update of units 0..hn (at most [`MAX_HIDDEN`]) from the gate activations
+/// `gates[g·hn + j][0]` (gate order i, f, g, o; the low 16 bits count): in assembly
+/// ([`crate::dsp::lstm_cell_update`]) where it runs, else [`cell_update_portable`].
+pub fn cell_update(gates: &[[i32; 2]], hn: usize, state: &mut LstmState, k: CellShifts) {
+    if !lstm_cell_update(gates, hn, state, k, activation::table(true)) {
+        cell_update_portable(gates, hn, state, k);
+    }
+}
+
+/// The reference of [`cell_update`], all in Rust. Units without four gates are left alone.
+pub fn cell_update_portable(gates: &[[i32; 2]], hn: usize, state: &mut LstmState, k: CellShifts) {
+    let hn = hn.min(MAX_HIDDEN);
+    let g = |n: usize| gates.get(n * hn..).unwrap_or(&[]);
+    let (ai, af, ag, ao) = (g(0), g(1), g(2), g(3));
+    let units = ai.iter().zip(af).zip(ag).zip(ao);
+    let (c, h) = (&mut state.c[..hn], &mut state.h[..hn]);
+    for ((((i, f), g), o), (c, h)) in units.zip(c.iter_mut().zip(h.iter_mut())) {
+        cell_unit(k, [i[0], f[0], g[0], o[0]].map(|v| v as i16), c, h);
     }
 }
 
@@ -216,6 +246,18 @@ pub fn gate_activations_portable(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cell_to_q12_forms_agree() {
+        for cb in 1..=15 {
+            let k = CellShifts::new(cb);
+            for c in i16::MIN..=i16::MAX {
+                let shifts = sat_i16((((c as i32) << k.up) + k.half) >> k.down);
+                let asm_form = sat_i16((c as i32 * k.q_mul + k.q_add) >> 3);
+                assert_eq!(shifts, asm_form, "C = {cb}, c = {c}");
+            }
+        }
+    }
 
     #[test]
     fn requant_fast_path_equals_wide_definition() {

@@ -326,6 +326,56 @@ fn rng_bits(r: u32) -> u32 {
     r.wrapping_mul(0x9E37_79B9)
 }
 
+/// The assembly cell update (`lstm::cell_update`) against the Rust one for every cell format
+/// 1..=15 and hidden sizes 1..=128, on random and extreme gates and cell states.
+fn check_cell_update() {
+    let mut rng = Rng(0xce11_0001);
+    let mut first_bad = None;
+    for cb in 1..=15u32 {
+        for hn in [1usize, 2, 7, 64, 127, 128] {
+            let mut gates = [[0i32; 2]; 4 * 128];
+            for (r, g) in gates.iter_mut().enumerate() {
+                let x = rng.next();
+                let v = match (x >> 20) % 4 {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    _ => x as i16,
+                };
+                // Sigmoid gates are 0..=32767 in the model; any i16 must still agree.
+                g[0] = if r % 3 == 0 {
+                    v as i32
+                } else {
+                    (v as i32).abs().min(32767)
+                };
+                g[1] = rng.next() as i32;
+            }
+            let mut st = LstmState::new();
+            for (c, h) in st.c.iter_mut().zip(st.h.iter_mut()) {
+                let x = rng.next();
+                *c = match x % 5 {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    _ => (x >> 8) as i16,
+                };
+                *h = (x >> 3) as i16;
+            }
+            let k = lstm::CellShifts::new(cb);
+            let mut got = st.clone();
+            lstm::cell_update(black_box(&gates[..4 * hn]), hn, &mut got, k);
+            let mut want = st;
+            lstm::cell_update_portable(&gates[..4 * hn], hn, &mut want, k);
+            if got != want && first_bad.is_none() {
+                first_bad = Some((cb, hn));
+            }
+        }
+    }
+    harness::check_equal(
+        "lstm cell update asm == portable (first C, H)",
+        &first_bad,
+        &None,
+    );
+}
+
 #[entry]
 fn main() -> ! {
     let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
@@ -347,6 +397,7 @@ fn main() -> ! {
     check_dsp_kernel();
     check_lstm_kernel();
     check_gate_pass();
+    check_cell_update();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,
