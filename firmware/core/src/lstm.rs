@@ -23,9 +23,10 @@ use crate::{MAX_HIDDEN, MAX_INPUT};
 use core::mem::MaybeUninit;
 
 /// One LSTM's recurrent state for one channel. `repr(C)`: the assembly cell update
-/// ([`crate::dsp::lstm_cell_update`]) finds c at a fixed offset from h.
+/// ([`crate::dsp::lstm_cell_update`]) finds c at a fixed offset from h; aligned to 4 bytes so
+/// that the dense layer's kernel ([`crate::dsp::dot_i8_i16_fast`]) can load h by words.
 #[derive(Clone, Debug, PartialEq, Eq)]
-#[repr(C)]
+#[repr(C, align(4))]
 pub struct LstmState {
     /// Hidden state h, Q0.15. Entries past the model's H stay 0 (the padded kernel relies on it).
     pub h: [i16; MAX_HIDDEN],

@@ -22,7 +22,7 @@ use slipguard_core::blob::{CRC32, LstmRowParams};
 use slipguard_core::const_math;
 use slipguard_core::decision::p_unstable;
 use slipguard_core::dsp::{
-    MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, dot_i8_i16, dot_rows_i8_q15,
+    MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, dot_i8_i16, dot_i8_i16_fast, dot_rows_i8_q15,
     dot_rows_i8_q15_portable, lstm_gate_sums, lstm_gate_sums_portable, permute_q15,
 };
 use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
@@ -376,6 +376,65 @@ fn check_cell_update() {
     );
 }
 
+/// Activations, word-aligned (the natural-order kernel loads them by words), plus a spare one
+/// for a misaligned view.
+#[repr(C, align(4))]
+struct Acts([i16; MAX_N + 2]);
+
+/// `dot_i8_i16_fast` (assembly for whole groups of 8 on this target) against `dot_i8_i16`
+/// for every length 0..=MAX_N, random and extreme data, aligned and misaligned.
+fn check_dense_kernel() {
+    let mut rng = Rng(0xde25_e000);
+    let mut first_bad = None;
+    for pattern in 0..3u32 {
+        for n in 0..=MAX_N {
+            let mut w = Rows([0; ROWS * STRIDE + 4]);
+            let mut v = Acts([0; MAX_N + 2]);
+            for b in w.0.iter_mut() {
+                let r = rng.next();
+                *b = match pattern {
+                    0 => r as i8,
+                    1 => -128,
+                    _ => {
+                        if r & 1 == 0 {
+                            -128
+                        } else {
+                            127
+                        }
+                    }
+                };
+            }
+            for x in v.0.iter_mut() {
+                let r = rng.next();
+                *x = match pattern {
+                    0 => r as i16,
+                    1 => i16::MIN,
+                    _ => {
+                        if r & 1 == 0 {
+                            i16::MIN
+                        } else {
+                            i16::MAX
+                        }
+                    }
+                };
+            }
+            for (wo, vo) in [(0, 0), (1, 0), (0, 1)] {
+                let (ws, vs) = (&w.0[wo..wo + n], &v.0[vo..vo + n]);
+                let got = dot_i8_i16_fast(black_box(ws), vs);
+                let want = dot_i8_i16(ws, vs);
+                if got != want && first_bad.is_none() {
+                    first_bad = Some((pattern, n, wo, vo));
+                }
+            }
+        }
+    }
+    harness::check_equal(
+        "dense kernel dot_i8_i16_fast == dot_i8_i16 (first pattern, n, offsets)",
+        &first_bad,
+        &None,
+    );
+}
+
 #[entry]
 fn main() -> ! {
     let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
@@ -398,6 +457,7 @@ fn main() -> ! {
     check_lstm_kernel();
     check_gate_pass();
     check_cell_update();
+    check_dense_kernel();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,
