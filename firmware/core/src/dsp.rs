@@ -110,6 +110,40 @@ pub fn permute_q15(v: &[i16], out: &mut [u32]) -> usize {
     n
 }
 
+/// [`permute_q15`] into uninitialised memory (the same words): returns the words written, the
+/// initialised prefix of `out`, so the caller's buffer needs no zeroing. With `v` 4-byte aligned,
+/// on a Cortex-M with the DSP extension, groups of 8 values go through PKHBT/PKHTB in assembly.
+pub fn permute_q15_uninit<'o>(v: &[i16], out: &'o mut [core::mem::MaybeUninit<u32>]) -> &'o [u32] {
+    let groups = (v.len() / 4).min(out.len() / 2);
+    #[cfg(slipguard_dsp)]
+    let done = arm::permute_pairs_of_groups(v, out, groups / 2);
+    #[cfg(not(slipguard_dsp))]
+    let done = 0;
+    let lo = |x: i16| x as u16 as u32;
+    for (g, o) in v
+        .chunks_exact(4)
+        .zip(out.chunks_exact_mut(2))
+        .take(groups)
+        .skip(done)
+    {
+        o[0].write(lo(g[0]) | lo(g[2]) << 16);
+        o[1].write(lo(g[1]) | lo(g[3]) << 16);
+    }
+    let mut n = 2 * groups;
+    // A short last group, zero-padded, if it is the next one and `out` has room.
+    let tail = v.get(4 * groups..).unwrap_or(&[]);
+    if let (1..=3, Some(o)) = (tail.len(), out.get_mut(n..n + 2)) {
+        let at = |i: usize| tail.get(i).map_or(0, |&x| lo(x));
+        o[0].write(at(0) | at(2) << 16);
+        o[1].write(at(1) | at(3) << 16);
+        n += 2;
+    }
+    // SAFETY: out[..2·groups] is written (the first `done` groups by the assembly, which
+    // writes exactly those, the others by the loop), and out[2·groups..n] by the tail; a
+    // MaybeUninit<u32> has the layout of u32 and the result keeps `out` borrowed.
+    unsafe { core::slice::from_raw_parts(out.as_ptr().cast::<u32>(), n) }
+}
+
 /// Σ w[k]·v[k] with v given in [`permute_q15`]'s lane order (`act`, two words per 4 values):
 /// `4·(act.len() / 2)` terms, or fewer if `w` is shorter (like [`dot_i8_i16`]).
 #[inline]
@@ -636,6 +670,48 @@ mod arm {
         (8 * groups, sum)
     }
 
+    /// The assembly part of `permute_q15_uninit`: groups 0..2·pairs (8 values each pair),
+    /// written to out[..4·pairs]; returns the number of groups written (0 if `v` or `out` is not
+    /// word-aligned or too short, then nothing is written).
+    #[inline]
+    pub(super) fn permute_pairs_of_groups(
+        v: &[i16],
+        out: &mut [MaybeUninit<u32>],
+        pairs: usize,
+    ) -> usize {
+        if pairs == 0
+            || v.len() < 8 * pairs
+            || out.len() < 4 * pairs
+            || !(v.as_ptr() as usize).is_multiple_of(4)
+            || !(out.as_ptr() as usize).is_multiple_of(4)
+        {
+            return 0;
+        }
+        // SAFETY: reads v[..8·pairs] (4·pairs aligned words inside `v`) and writes
+        // out[..4·pairs] (inside `out`, aligned); saves and restores r4-r10.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r10}}",
+                "1:",
+                // (v0 | v1 << 16), (v2 | v3 << 16), … → (v0 | v2 << 16), (v1 | v3 << 16), …
+                "ldm r0!, {{r3, r4, r5, r6}}",
+                "pkhbt r7, r3, r4, lsl #16",
+                "pkhtb r8, r4, r3, asr #16",
+                "pkhbt r9, r5, r6, lsl #16",
+                "pkhtb r10, r6, r5, asr #16",
+                "stm r1!, {{r7, r8, r9, r10}}",
+                "subs r2, r2, #1",
+                "bne 1b",
+                "pop {{r4-r10}}",
+                inout("r0") v.as_ptr() => _,
+                inout("r1") out.as_mut_ptr() => _,
+                inout("r2") pairs => _,
+                out("r3") _,
+            );
+        }
+        2 * pairs
+    }
+
     /// What the cell update reads, in the order of its LDM (r0-r5, r7-r10).
     #[repr(C)]
     struct CellParams {
@@ -1044,6 +1120,19 @@ mod tests {
             let mut port = [[0i32; 2]; 5];
             lstm_gate_sums_portable(w, stride, hh, &x, &h, &mut port);
             assert_eq!(port.to_vec(), want);
+        }
+    }
+    #[test]
+    fn permute_uninit_equals_permute() {
+        let v: Vec<i16> = (0..140).map(|i| (i as i16).wrapping_mul(-4321)).collect();
+        for n in 0..=140 {
+            for words in [0, 1, 3, 8, 70, 71] {
+                let mut want = vec![0u32; words];
+                let k = permute_q15(&v[..n], &mut want);
+                let mut buf = vec![core::mem::MaybeUninit::uninit(); words];
+                let got = permute_q15_uninit(&v[..n], &mut buf);
+                assert_eq!(got, &want[..k], "n = {n}, words = {words}");
+            }
         }
     }
 }

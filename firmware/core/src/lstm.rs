@@ -17,7 +17,7 @@
 
 use crate::activation::{self, sigmoid, tanh};
 use crate::blob::{LstmRowParams, LstmTensors};
-use crate::dsp::{lstm_cell_update, lstm_gate_rows, lstm_gate_sums, permute_q15};
+use crate::dsp::{lstm_cell_update, lstm_gate_rows, lstm_gate_sums, permute_q15_uninit};
 use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
 use crate::{MAX_HIDDEN, MAX_INPUT};
 use core::mem::MaybeUninit;
@@ -154,23 +154,17 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     let x = &x[..t.inputs.min(x.len())];
     // x and h in the dot kernel's lane order, zero-padded to whole groups of 4 (the weights'
     // padding meets zeros, so the sums equal the plain dot products over I and H terms).
-    let mut xp = [0u32; MAX_INPUT.div_ceil(4) * 2];
-    let xw = permute_q15(x, &mut xp);
-    let mut hp = [0u32; MAX_HIDDEN / 2];
-    let hw = permute_q15(&state.h[..hn], &mut hp);
+    // Written by the permutation, so not zeroed first.
+    let mut xbuf = [MaybeUninit::<u32>::uninit(); MAX_INPUT.div_ceil(4) * 2];
+    let xp = permute_q15_uninit(x, &mut xbuf);
+    let mut hbuf = [MaybeUninit::<u32>::uninit(); MAX_HIDDEN / 2];
+    let hp = permute_q15_uninit(&state.h[..hn], &mut hbuf);
     let stride = t.row_len.max(1);
     let rows = (4 * hn).min(t.rows.len()).min(t.weights.len() / stride);
     // Rows in PyTorch's gate order i, f, g, o: row g·H + j belongs to gate g of unit j.
     // acc[r] = [Σ W_ih[r]·x, Σ W_hh[r]·h]; written by the kernel, so not zeroed first.
     let mut acc = [MaybeUninit::<[i32; 2]>::uninit(); 4 * MAX_HIDDEN];
-    let acc = lstm_gate_sums(
-        t.weights,
-        stride,
-        t.hh_offset,
-        &xp[..xw],
-        &hp[..hw],
-        &mut acc[..rows],
-    );
+    let acc = lstm_gate_sums(t.weights, stride, t.hh_offset, xp, hp, &mut acc[..rows]);
     // Pass 1, row by row: each gate's activation (Q0.15) replaces its x sum. Rows 2H..3H are
     // the cell candidate g (tanh); the others are sigmoid gates.
     let (sig_if, rest) = acc.split_at_mut((2 * hn).min(rows));

@@ -24,6 +24,7 @@ use slipguard_core::decision::p_unstable;
 use slipguard_core::dsp::{
     MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, dot_i8_i16, dot_i8_i16_fast, dot_rows_i8_q15,
     dot_rows_i8_q15_portable, lstm_gate_sums, lstm_gate_sums_portable, permute_q15,
+    permute_q15_uninit,
 };
 use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
 use slipguard_core::lstm::{self, LstmState};
@@ -428,6 +429,28 @@ fn check_dense_kernel() {
             }
         }
     }
+    // The permutation's assembly (groups of 8 values, aligned) against the portable one.
+    let mut bad_perm = None;
+    for n in 0..=MAX_N {
+        for off in [0, 1] {
+            let v = Acts(core::array::from_fn(|i| {
+                (i as i16).wrapping_mul(-3217) ^ 0x5a5a
+            }));
+            let vs = &v.0[off..off + n];
+            let mut want = [0u32; MAX_N / 2 + 2];
+            let k = permute_q15(vs, &mut want);
+            let mut buf = [MaybeUninit::<u32>::uninit(); MAX_N / 2 + 2];
+            let got = permute_q15_uninit(black_box(vs), &mut buf);
+            if got != &want[..k] && bad_perm.is_none() {
+                bad_perm = Some((n, off));
+            }
+        }
+    }
+    harness::check_equal(
+        "permute_q15_uninit == permute_q15 (first n, offset)",
+        &bad_perm,
+        &None,
+    );
     harness::check_equal(
         "dense kernel dot_i8_i16_fast == dot_i8_i16 (first pattern, n, offsets)",
         &first_bad,
