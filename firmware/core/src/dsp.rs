@@ -360,6 +360,62 @@ mod arm {
              smlad r2, r12, r11, r2"
         };
     }
+    /// One row of the gate pass (see `gate_rows`): leaves for label 2 at a shift outside
+    /// 33..=62. z = acc_x·mx + acc_h·mh (64 bits, SMULL + SMLAL); t = hi >> (shift - 33);
+    /// (t + 1) >> 1; saturating add of the bias; SSAT to i16; then the interval z >> 7 (one
+    /// LDRD of [lo·2^7 + 2^6, hi - lo]) at position z & 127: (a + d·f) >> 7.
+    macro_rules! GATE_ROW {
+        () => {
+            "ldm r2!, {{r4, r5, r6, r7}}
+             sub r7, r7, #33
+             cmp r7, #30
+             bhs 2f
+             ldrd r8, r9, [r0]
+             smull r10, r11, r8, r4
+             smlal r10, r11, r9, r5
+             asr r11, r11, r7
+             add r11, r11, #1
+             asr r11, r11, #1
+             qadd r11, r11, r6
+             ssat r11, #16, r11
+             asr r8, r11, #7
+             add r8, r3, r8, lsl #3
+             ldrd r9, r10, [r8]
+             and r11, r11, #127
+             mla r9, r10, r11, r9
+             asr r9, r9, #7
+             str r9, [r0], #8"
+        };
+    }
+    /// One unit of the cell update (see `cell_update`):
+    /// c' = sat16(((f·c + 2^14) >> 15) + ((i·g + half) >> ig_shift)); q = sat16((c'·q_mul +
+    /// q_add) >> 3), Q3.12; tanh(q) by the table; h' = sat16((o·tanh(c') + 2^14) >> 15).
+    macro_rules! CELL_UNIT {
+        () => {
+            "ldr r11, [r0, r1]
+             ldrsh r12, [r3, #{coff}]
+             smlabb r11, r11, r12, r6
+             ldr r12, [r0, r1, lsl #1]
+             ldr lr, [r0], #8
+             smlabb r12, lr, r12, r7
+             asr r12, r12, r8
+             add r12, r12, r11, asr #15
+             ssat r12, #16, r12
+             strh r12, [r3, #{coff}]
+             smlabb r12, r12, r9, r10
+             ssat r12, #16, r12, asr #3
+             asr r11, r12, #7
+             add r11, r5, r11, lsl #3
+             ldrd r11, lr, [r11]
+             and r12, r12, #127
+             mla r11, lr, r12, r11
+             asr r11, r11, #7
+             ldr r12, [r2], #8
+             smlabb r11, r12, r11, r6
+             ssat r11, #16, r11, asr #15
+             strh r11, [r3], #2"
+        };
+    }
     /// One leftover word; SMUAD starts the accumulator.
     macro_rules! STUB1 {
         () => {
@@ -586,28 +642,13 @@ mod arm {
         unsafe {
             core::arch::asm!(
                 "push {{r4-r11}}",
+                // Two rows per loop pass; an odd count enters at the second.
+                "tst r12, #1",
+                "bne 3f",
                 "1:",
-                "ldm r2!, {{r4, r5, r6, r7}}",
-                "sub r7, r7, #33",
-                "cmp r7, #30",
-                "bhs 2f",
-                "ldrd r8, r9, [r0]",
-                // z = acc_x·mx + acc_h·mh (64 bits); t = hi >> (shift - 33); (t + 1) >> 1.
-                "smull r10, r11, r8, r4",
-                "smlal r10, r11, r9, r5",
-                "asr r11, r11, r7",
-                "add r11, r11, #1",
-                "asr r11, r11, #1",
-                "qadd r11, r11, r6",
-                "ssat r11, #16, r11",
-                // Interval z >> 7 (one LDRD of [lo·2^7 + 2^6, hi - lo]), position z & 127.
-                "asr r8, r11, #7",
-                "add r8, r3, r8, lsl #3",
-                "ldrd r9, r10, [r8]",
-                "and r11, r11, #127",
-                "mla r9, r10, r11, r9",
-                "asr r9, r9, #7",
-                "str r9, [r0], #8",
+                GATE_ROW!(),
+                "3:",
+                GATE_ROW!(),
                 "cmp r0, r1",
                 "bne 1b",
                 "2:",
@@ -616,6 +657,7 @@ mod arm {
                 in("r1") range.end,
                 inout("r2") params.as_ptr() => _,
                 in("r3") mid,
+                in("r12") n,
             );
         }
         // Rows done: `end` is `range.start` advanced by whole rows, within the range.
@@ -765,32 +807,14 @@ mod arm {
                 "push {{r4-r11, lr}}",
                 "ldm r0, {{r0, r1, r2, r3, r4, r5, r7, r8, r9, r10}}",
                 "mov r6, #16384",
+                // Two units per loop pass; an odd count enters at the second.
+                "sub r11, r4, r3",
+                "tst r11, #2",
+                "bne 3f",
                 "1:",
-                // c' = sat16(((f·c + 2^14) >> 15) + ((i·g + half) >> ig_shift)).
-                "ldr r11, [r0, r1]",
-                "ldrsh r12, [r3, #{coff}]",
-                "smlabb r11, r11, r12, r6",
-                "ldr r12, [r0, r1, lsl #1]",
-                "ldr lr, [r0], #8",
-                "smlabb r12, lr, r12, r7",
-                "asr r12, r12, r8",
-                "add r12, r12, r11, asr #15",
-                "ssat r12, #16, r12",
-                "strh r12, [r3, #{coff}]",
-                // q = sat16((c'·q_mul + q_add) >> 3), Q3.12; tanh(q) by the table.
-                "smlabb r12, r12, r9, r10",
-                "ssat r12, #16, r12, asr #3",
-                "asr r11, r12, #7",
-                "add r11, r5, r11, lsl #3",
-                "ldrd r11, lr, [r11]",
-                "and r12, r12, #127",
-                "mla r11, lr, r12, r11",
-                "asr r11, r11, #7",
-                // h' = sat16((o·tanh(c') + 2^14) >> 15).
-                "ldr r12, [r2], #8",
-                "smlabb r11, r12, r11, r6",
-                "ssat r11, #16, r11, asr #15",
-                "strh r11, [r3], #2",
+                CELL_UNIT!(),
+                "3:",
+                CELL_UNIT!(),
                 "cmp r3, r4",
                 "bne 1b",
                 "pop {{r4-r11, lr}}",
