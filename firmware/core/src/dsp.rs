@@ -6,11 +6,21 @@
 //!
 //! # Kernels
 //!
-//! - [`dot_i8_i16`]: one portable dot product (the reference; the dense layer uses it).
+//! - [`dot_i8_i16`]: one portable dot product (the reference); [`dot_i8_i16_fast`] the same
+//!   number with SXTB16/PKHBT/SMLAD over activations in natural order (the dense layer).
 //! - [`dot_rows_i8_q15`]: many rows of int8 weights (at a fixed stride) against one activation
 //!   vector that [`permute_q15`] has put in *SXTB16 lane order*. On `thumbv7em` with the DSP
 //!   extension it runs the assembly kernel below; elsewhere (the host, and any argument the
 //!   kernel cannot take) [`dot_rows_i8_q15_portable`], which defines the result.
+//! - [`lstm_gate_sums`]: the LSTM's two dot products of every gate row (x part and h part of
+//!   the blob's contiguous rows) in one assembly pass, into uninitialised memory; reference
+//!   [`lstm_gate_sums_portable`].
+//! - [`lstm_gate_rows`]: the gate pass (requantisation, σ/tanh by interval table) in assembly;
+//!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
+//!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
+//! - [`permute_q15_uninit`]: [`permute_q15`] into uninitialised memory (PKHBT/PKHTB).
+//!
+//! The QEMU bench (`firmware/qemu-bench`) checks every assembly path against its reference.
 //!
 //! # The lane trick
 //!
@@ -65,17 +75,18 @@ pub fn dot_i8_i16(w: &[i8], v: &[i16]) -> i32 {
 #[inline]
 pub fn dot_i8_i16_fast(w: &[i8], v: &[i16]) -> i32 {
     #[cfg(slipguard_dsp)]
-    {
+    let sum = {
         let n = w.len().min(v.len());
         let (w, v) = (&w[..n], &v[..n]);
         // The assembly's part: `done` terms (a multiple of 8, ≤ n; 0 if it cannot run).
-        let (done, sum) = arm::dot_natural(w, v);
+        let (done, head) = arm::dot_natural(w, v);
         let rest = dot_i8_i16(w.get(done..).unwrap_or(&[]), v.get(done..).unwrap_or(&[]));
         // Exact: the whole sum fits in i32 (see `dot_i8_i16`), so does every partial sum.
-        return sum.wrapping_add(rest);
-    }
+        head.wrapping_add(rest)
+    };
     #[cfg(not(slipguard_dsp))]
-    dot_i8_i16(w, v)
+    let sum = dot_i8_i16(w, v);
+    sum
 }
 
 /// Longest activation vector (in values) that [`dot_rows_i8_q15`] runs in assembly; longer ones
