@@ -3,7 +3,9 @@
 //! Input: `i16` in Q3.12 (a gate pre-activation, [-8, 8)). Output: `i16` in Q0.15.
 //! Each table has 513 entries, one per 1/32 of the input range [-8, 8], generated at compile
 //! time by `const fn` from [`crate::const_math`]. Between entries the value is interpolated
-//! linearly on the low 7 bits of the input.
+//! linearly on the low 7 bits of the input. The lookup tables store each interval as the pair
+//! `[lo·2^7 + 2^6, hi - lo]` (one LDRD, one MLA, one shift on the M4); a test checks every input
+//! against the plain interpolation between the 513 values.
 //!
 //! Error against f64 at the exact Q3.12 input (over all 65 536 inputs, test
 //! `activation::tests::max_error_against_f64`): sigmoid at most [`SIGMOID_MAX_ERR_LSB`] LSB
@@ -48,21 +50,59 @@ const fn build(tanh: bool) -> [i16; ENTRIES] {
     t
 }
 
-/// σ(x) on [-8, 8] in steps of 1/32, Q0.15.
-static SIGMOID_TABLE: [i16; ENTRIES] = build(false);
+/// σ(x) on [-8, 8] in steps of 1/32, Q0.15 (the values the interpolation is defined on).
+const SIGMOID_VALUES: [i16; ENTRIES] = build(false);
 /// tanh(x) on [-8, 8] in steps of 1/32, Q0.15.
-static TANH_TABLE: [i16; ENTRIES] = build(true);
+const TANH_VALUES: [i16; ENTRIES] = build(true);
 
+/// One interpolation interval k as the lookup uses it: `[lo·2^7 + 2^6, hi - lo]` with
+/// lo = values[k], hi = values[k + 1]. One 8-byte load (LDRD) per lookup gives both.
+const fn pairs(v: &[i16; ENTRIES]) -> [[i32; 2]; ENTRIES - 1] {
+    let mut t = [[0i32; 2]; ENTRIES - 1];
+    let mut k = 0;
+    while k < ENTRIES - 1 {
+        let lo = v[k] as i32;
+        t[k] = [
+            (lo << FRAC_BITS) + (1 << (FRAC_BITS - 1)),
+            v[k + 1] as i32 - lo,
+        ];
+        k += 1;
+    }
+    t
+}
+
+/// An activation's interval table: 512 entries `[lo·2^7 + 2^6, hi - lo]`.
+pub type IntervalTable = [[i32; 2]; ENTRIES - 1];
+
+/// σ intervals (see [`pairs`]).
+static SIGMOID_TABLE: IntervalTable = pairs(&SIGMOID_VALUES);
+/// tanh intervals (see [`pairs`]).
+static TANH_TABLE: IntervalTable = pairs(&TANH_VALUES);
+
+/// The interval table of tanh (`true`) or σ (`false`), for [`lookup`] and the assembly gate pass
+/// in [`crate::dsp`].
+pub fn table(tanh: bool) -> &'static IntervalTable {
+    if tanh { &TANH_TABLE } else { &SIGMOID_TABLE }
+}
+
+/// f(x) by the interval table of f: [`sigmoid`] or [`tanh`] for their tables.
 #[inline(always)]
-fn interpolate(table: &[i16; ENTRIES], x: i16) -> i16 {
-    // Offset the input to 0..=65535 so its top 9 bits index the table.
-    let u = (x as i32 + 32768) as u32;
-    let idx = (u >> FRAC_BITS) as usize; // 0..=511, so idx + 1 <= 512 stays in the table
-    let frac = (u & ((1 << FRAC_BITS) - 1)) as i32; // position in the interval, 0..127 of 128
-    let lo = table[idx & 511] as i32;
-    let hi = table[(idx & 511) + 1] as i32;
-    // Rounded linear interpolation; the result lies between lo and hi, so it fits in i16.
-    (lo + (((hi - lo) * frac + (1 << (FRAC_BITS - 1))) >> FRAC_BITS)) as i16
+pub fn lookup(table: &IntervalTable, x: i16) -> i16 {
+    interpolate(table, x)
+}
+
+/// Rounded linear interpolation between values[k] and values[k + 1] (`lo`, `hi`), k the top 9
+/// bits of `x + 32768`, at the position f = the low 7 bits:
+/// `lo + ((hi - lo)·f + 2^6) >> 7`, computed as `(lo·2^7 + 2^6 + (hi - lo)·f) >> 7`, which is
+/// the same number (lo·2^7 is a multiple of 2^7, so it passes through the floor unchanged).
+/// The result lies between lo and hi, so it fits in i16.
+#[inline(always)]
+fn interpolate(table: &IntervalTable, x: i16) -> i16 {
+    // (x + 32768) >> 7 = (x >> 7) + 256, in 0..=511 for every i16.
+    let k = ((x as i32 >> FRAC_BITS) + 256) as usize;
+    let frac = x as i32 & ((1 << FRAC_BITS) - 1); // position in the interval, 0..127 of 128
+    let [a, d] = table[k & (ENTRIES - 2)];
+    ((a + d * frac) >> FRAC_BITS) as i16
 }
 
 /// σ(x): Q3.12 in, Q0.15 out (0..=32767).
@@ -101,6 +141,24 @@ mod tests {
         );
         assert!(es * 32768.0 <= SIGMOID_MAX_ERR_LSB as f64, "sigmoid {es}");
         assert!(et * 32768.0 <= TANH_MAX_ERR_LSB as f64, "tanh {et}");
+    }
+
+    /// The definition: interpolation on the i16 value tables, `lo + (((hi - lo)·f + 64) >> 7)`.
+    fn reference(values: &[i16; ENTRIES], x: i16) -> i16 {
+        let u = (x as i32 + 32768) as u32;
+        let idx = (u >> FRAC_BITS) as usize;
+        let frac = (u & ((1 << FRAC_BITS) - 1)) as i32;
+        let lo = values[idx] as i32;
+        let hi = values[idx + 1] as i32;
+        (lo + (((hi - lo) * frac + (1 << (FRAC_BITS - 1))) >> FRAC_BITS)) as i16
+    }
+
+    #[test]
+    fn pair_tables_equal_value_table_interpolation() {
+        for x in i16::MIN..=i16::MAX {
+            assert_eq!(sigmoid(x), reference(&SIGMOID_VALUES, x), "sigmoid({x})");
+            assert_eq!(tanh(x), reference(&TANH_VALUES, x), "tanh({x})");
+        }
     }
 
     #[test]

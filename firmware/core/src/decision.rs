@@ -2,7 +2,7 @@
 
 use crate::activation::sigmoid;
 use crate::blob::{DenseTensors, ModelConfig};
-use crate::dsp::dot_i8_i16;
+use crate::dsp::dot_i8_i16_fast;
 use crate::fixed::{round_shift_i64, sat_i16_wide};
 
 /// p(unstable) = softmax(logits)[1] = σ(l1 - l0), Q0.15, from the concatenated hidden states
@@ -20,7 +20,7 @@ pub fn p_unstable(dense: &DenseTensors<'_>, hs: &[&[i16]]) -> i16 {
         for h in hs {
             // Each LSTM's slice of the row starts at a multiple of 4 (rows are padded per LSTM).
             let seg = row.get(off..).unwrap_or(&[]);
-            acc += dot_i8_i16(seg, h) as i64;
+            acc += dot_i8_i16_fast(seg, h) as i64;
             off += crate::blob::pad4(h.len());
         }
         // acc·m: acc < 2^30 (256 terms of 2^22), m < 2^31; shift validated 1..=62 at parse.

@@ -6,11 +6,21 @@
 //!
 //! # Kernels
 //!
-//! - [`dot_i8_i16`]: one portable dot product (the reference; the dense layer uses it).
+//! - [`dot_i8_i16`]: one portable dot product (the reference); [`dot_i8_i16_fast`] the same
+//!   number with SXTB16/PKHBT/SMLAD over activations in natural order (the dense layer).
 //! - [`dot_rows_i8_q15`]: many rows of int8 weights (at a fixed stride) against one activation
 //!   vector that [`permute_q15`] has put in *SXTB16 lane order*. On `thumbv7em` with the DSP
 //!   extension it runs the assembly kernel below; elsewhere (the host, and any argument the
 //!   kernel cannot take) [`dot_rows_i8_q15_portable`], which defines the result.
+//! - [`lstm_gate_sums`]: the LSTM's two dot products of every gate row (x part and h part of
+//!   the blob's contiguous rows) in one assembly pass, into uninitialised memory; reference
+//!   [`lstm_gate_sums_portable`].
+//! - [`lstm_gate_rows`]: the gate pass (requantisation, σ/tanh by interval table) in assembly;
+//!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
+//!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
+//! - [`permute_q15_uninit`]: [`permute_q15`] into uninitialised memory (PKHBT/PKHTB).
+//!
+//! The QEMU bench (`firmware/qemu-bench`) checks every assembly path against its reference.
 //!
 //! # The lane trick
 //!
@@ -27,6 +37,10 @@
 //! the portable code.
 
 #![allow(unsafe_code)]
+
+use crate::activation::IntervalTable;
+use crate::blob::LstmRowParams;
+use crate::lstm::{CellShifts, LstmState};
 
 /// Σ w[i]·v[i] over `min(w.len(), v.len())` elements: int8 weights × int16 activations,
 /// accumulated in `i32`.
@@ -54,6 +68,27 @@ pub fn dot_i8_i16(w: &[i8], v: &[i16]) -> i32 {
     acc[0] + acc[1] + acc[2] + acc[3] + tail
 }
 
+/// [`dot_i8_i16`] (the same result), with the largest multiple of 8 terms in assembly on a
+/// Cortex-M with the DSP extension when `w` and `v` are 4-byte aligned: per 8 terms two LDMs,
+/// SXTB16 ×2, PKHBT/PKHTB (weight pairs in the activations' natural order) and SMLAD ×2 per
+/// weight word. The dense layer uses it; the rest of the terms go through [`dot_i8_i16`].
+#[inline]
+pub fn dot_i8_i16_fast(w: &[i8], v: &[i16]) -> i32 {
+    #[cfg(slipguard_dsp)]
+    let sum = {
+        let n = w.len().min(v.len());
+        let (w, v) = (&w[..n], &v[..n]);
+        // The assembly's part: `done` terms (a multiple of 8, ≤ n; 0 if it cannot run).
+        let (done, head) = arm::dot_natural(w, v);
+        let rest = dot_i8_i16(w.get(done..).unwrap_or(&[]), v.get(done..).unwrap_or(&[]));
+        // Exact: the whole sum fits in i32 (see `dot_i8_i16`), so does every partial sum.
+        head.wrapping_add(rest)
+    };
+    #[cfg(not(slipguard_dsp))]
+    let sum = dot_i8_i16(w, v);
+    sum
+}
+
 /// Longest activation vector (in values) that [`dot_rows_i8_q15`] runs in assembly; longer ones
 /// take the portable path. 140 ≥ MAX_HIDDEN and ≥ MAX_INPUT.
 pub const MAX_ASM_VALUES: usize = 4 * (3 * ASM_BLOCKS + 2);
@@ -65,14 +100,59 @@ const ASM_BLOCKS: usize = 11;
 /// Returns the number of words written, `2·ceil(v.len() / 4)`, less if `out` is too short
 /// (whole groups only).
 pub fn permute_q15(v: &[i16], out: &mut [u32]) -> usize {
-    let lo = |x: Option<&i16>| x.map_or(0, |&x| x as u16 as u32);
+    let lo = |x: i16| x as u16 as u32;
     let mut n = 0;
-    for (g, o) in v.chunks(4).zip(out.chunks_exact_mut(2)) {
-        o[0] = lo(g.first()) | lo(g.get(2)) << 16;
-        o[1] = lo(g.get(1)) | lo(g.get(3)) << 16;
+    let mut groups = v.chunks_exact(4);
+    let mut words = out.chunks_exact_mut(2);
+    // Whole groups: two PKHBT/PKHTB-like merges each.
+    for (g, o) in (&mut groups).zip(&mut words) {
+        o[0] = lo(g[0]) | lo(g[2]) << 16;
+        o[1] = lo(g[1]) | lo(g[3]) << 16;
+        n += 2;
+    }
+    // A short last group, zero-padded (if `out` still has room).
+    let g = groups.remainder();
+    if let (false, Some(o)) = (g.is_empty(), words.next()) {
+        let at = |i: usize| g.get(i).map_or(0, |&x| lo(x));
+        o[0] = at(0) | at(2) << 16;
+        o[1] = at(1) | at(3) << 16;
         n += 2;
     }
     n
+}
+
+/// [`permute_q15`] into uninitialised memory (the same words): returns the words written, the
+/// initialised prefix of `out`, so the caller's buffer needs no zeroing. With `v` 4-byte aligned,
+/// on a Cortex-M with the DSP extension, groups of 8 values go through PKHBT/PKHTB in assembly.
+pub fn permute_q15_uninit<'o>(v: &[i16], out: &'o mut [core::mem::MaybeUninit<u32>]) -> &'o [u32] {
+    let groups = (v.len() / 4).min(out.len() / 2);
+    #[cfg(slipguard_dsp)]
+    let done = arm::permute_pairs_of_groups(v, out, groups / 2);
+    #[cfg(not(slipguard_dsp))]
+    let done = 0;
+    let lo = |x: i16| x as u16 as u32;
+    for (g, o) in v
+        .chunks_exact(4)
+        .zip(out.chunks_exact_mut(2))
+        .take(groups)
+        .skip(done)
+    {
+        o[0].write(lo(g[0]) | lo(g[2]) << 16);
+        o[1].write(lo(g[1]) | lo(g[3]) << 16);
+    }
+    let mut n = 2 * groups;
+    // A short last group, zero-padded, if it is the next one and `out` has room.
+    let tail = v.get(4 * groups..).unwrap_or(&[]);
+    if let (1..=3, Some(o)) = (tail.len(), out.get_mut(n..n + 2)) {
+        let at = |i: usize| tail.get(i).map_or(0, |&x| lo(x));
+        o[0].write(at(0) | at(2) << 16);
+        o[1].write(at(1) | at(3) << 16);
+        n += 2;
+    }
+    // SAFETY: out[..2·groups] is written (the first `done` groups by the assembly, which
+    // writes exactly those, the others by the loop), and out[2·groups..n] by the tail; a
+    // MaybeUninit<u32> has the layout of u32 and the result keeps `out` borrowed.
+    unsafe { core::slice::from_raw_parts(out.as_ptr().cast::<u32>(), n) }
 }
 
 /// Σ w[k]·v[k] with v given in [`permute_q15`]'s lane order (`act`, two words per 4 values):
@@ -129,9 +209,250 @@ pub fn dot_rows_i8_q15(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) {
     dot_rows_i8_q15_portable(w, stride, act, out)
 }
 
+/// Weight words per LSTM row that [`lstm_gate_sums`] runs in assembly: x part (≥ MAX_INPUT / 4)
+/// and h part (≥ MAX_HIDDEN / 4).
+pub const MAX_ASM_X_WORDS: usize = 3 * ASM_X_BLOCKS + 2;
+/// See [`MAX_ASM_X_WORDS`].
+pub const MAX_ASM_H_WORDS: usize = 3 * ASM_BLOCKS + 2;
+/// 3-word blocks of the x part in the LSTM kernel: one (a SMUAD copy entered first, when
+/// there is no remainder, and a SMLAD copy after a remainder stub).
+const ASM_X_BLOCKS: usize = 1;
+
+/// The reference of [`lstm_gate_sums`]: `out[r] = [Σ_k w[r·stride + k]·x[k],
+/// Σ_k w[hh_offset + r·stride + k]·h[k]]`, x and h in [`permute_q15`]'s order, with the row
+/// semantics of [`dot_rows_i8_q15_portable`] (the two sums are exactly its results for `w` and
+/// for `w[hh_offset..]`).
+pub fn lstm_gate_sums_portable(
+    w: &[i8],
+    stride: usize,
+    hh_offset: usize,
+    x: &[u32],
+    h: &[u32],
+    out: &mut [[i32; 2]],
+) {
+    for (r, o) in out.iter_mut().enumerate() {
+        *o = gate_row(w, stride, hh_offset, x, h, r);
+    }
+}
+
+/// Row `r` of [`lstm_gate_sums_portable`].
+#[inline]
+fn gate_row(w: &[i8], stride: usize, hh_offset: usize, x: &[u32], h: &[u32], r: usize) -> [i32; 2] {
+    fn row(w: &[i8], r: usize, stride: usize) -> &[i8] {
+        r.checked_mul(stride)
+            .and_then(|s| w.get(s..))
+            .unwrap_or(&[])
+    }
+    let w_hh = w.get(hh_offset..).unwrap_or(&[]);
+    [
+        dot_i8_q15_permuted(row(w, r, stride), x),
+        dot_i8_q15_permuted(row(w_hh, r, stride), h),
+    ]
+}
+
+/// Both dot products of every LSTM gate row in one pass, into uninitialised memory: the same
+/// numbers as [`lstm_gate_sums_portable`], returned as the initialised `out`.
+///
+/// A blob's LSTM row is `[W_ih row (hh_offset bytes) | W_hh row]` and rows follow each other,
+/// so when `hh_offset = 4·(x.len() / 2)` and `stride = hh_offset + 4·(h.len() / 2)` the weights
+/// are one contiguous stream. Then, on a Cortex-M with the DSP extension, with `w` 4-byte aligned,
+/// every row inside `w`, at most [`MAX_ASM_X_WORDS`] and [`MAX_ASM_H_WORDS`] weight words per
+/// part, the assembly kernel runs (one call for all rows: per row the x part, then the h part,
+/// each a computed jump into unrolled SXTB16/SMLAD blocks); otherwise the portable code.
+pub fn lstm_gate_sums<'o>(
+    w: &[i8],
+    stride: usize,
+    hh_offset: usize,
+    x: &[u32],
+    h: &[u32],
+    out: &'o mut [core::mem::MaybeUninit<[i32; 2]>],
+) -> &'o mut [[i32; 2]] {
+    #[cfg(slipguard_dsp)]
+    let done = arm::lstm_rows(w, stride, hh_offset, x, h, out);
+    #[cfg(not(slipguard_dsp))]
+    let done = false;
+    if !done {
+        for (r, o) in out.iter_mut().enumerate() {
+            o.write(gate_row(w, stride, hh_offset, x, h, r));
+        }
+    }
+    // SAFETY: every element of `out` has been written, by the kernel (see `arm::lstm_rows`:
+    // it returns true only after writing all of them) or by the loop above; `MaybeUninit<T>`
+    // has the layout of `T`, and the returned borrow keeps `out` (exclusively) borrowed.
+    unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i32; 2]>(), out.len()) }
+}
+
+/// The gate pass of the LSTM in assembly. From the first row on, while a row's requantisation
+/// shift is in 33..=62: `acc[r][0] = f(z)` with z = `sat16(round((acc[r][0]·mx + acc[r][1]·mh)
+/// / 2^shift) + bias)` and f given by its interval `table` ([`crate::activation::lookup`]).
+/// Returns the number of rows done (0 on targets without the DSP extension); the caller,
+/// `lstm::gate_activations`, does the rest. The same bits as `lstm::gate_activations_portable`:
+/// the rounding is that of `lstm::requant`, t = ⌊z / 2^(shift-1)⌋ from the high word of the
+/// 64-bit sum, then ⌊(t + 1) / 2⌋.
+#[inline]
+pub fn lstm_gate_rows(
+    acc: &mut [[i32; 2]],
+    params: &[LstmRowParams],
+    table: &IntervalTable,
+) -> usize {
+    #[cfg(slipguard_dsp)]
+    return arm::gate_rows(acc, params, table);
+    #[cfg(not(slipguard_dsp))]
+    {
+        let _ = (acc, params, table);
+        0
+    }
+}
+
+/// The LSTM cell update in assembly, for units 0..hn from the gate activations
+/// `gates[g·hn + j][0]` (gate order i, f, g, o, low 16 bits): the same bits as
+/// `lstm::cell_update_portable` (the cell → Q3.12 conversion in its `q_mul`/`q_add` form, tanh
+/// by its interval `table`). Returns false, changing nothing, where it does not run (other
+/// targets, `hn` > MAX_HIDDEN or fewer than 4·hn gates); true after updating every unit.
+#[inline]
+pub fn lstm_cell_update(
+    gates: &[[i32; 2]],
+    hn: usize,
+    state: &mut LstmState,
+    k: CellShifts,
+    table: &IntervalTable,
+) -> bool {
+    #[cfg(slipguard_dsp)]
+    return arm::cell_update(gates, hn, state, k, table);
+    #[cfg(not(slipguard_dsp))]
+    {
+        let _ = (gates, hn, state, k, table);
+        false
+    }
+}
+
 #[cfg(slipguard_dsp)]
 mod arm {
-    use super::ASM_BLOCKS;
+    use super::{ASM_BLOCKS, ASM_X_BLOCKS, CellShifts, IntervalTable, LstmRowParams, LstmState};
+    use crate::MAX_HIDDEN;
+    use crate::lstm::C_OFFSET;
+    use core::mem::MaybeUninit;
+
+    /// One 3-word block: 12 MACs in 14 instructions, 56 bytes (all 32-bit encodings).
+    macro_rules! BLOCK {
+        () => {
+            "ldmia.w r0!, {{r3, r4, r5}}
+             ldmia.w r1!, {{r6, r7, r8, r9, r10, r11}}
+             sxtb16 r12, r3, ror #8
+             sxtb16 r3, r3
+             smlad r2, r3, r6, r2
+             smlad r2, r12, r7, r2
+             sxtb16 r12, r4, ror #8
+             sxtb16 r4, r4
+             smlad r2, r4, r8, r2
+             smlad r2, r12, r9, r2
+             sxtb16 r12, r5, ror #8
+             sxtb16 r5, r5
+             smlad r2, r5, r10, r2
+             smlad r2, r12, r11, r2"
+        };
+    }
+    /// `BLOCK` starting the accumulator with SMUAD.
+    macro_rules! BLOCK_FIRST {
+        () => {
+            "ldmia.w r0!, {{r3, r4, r5}}
+             ldmia.w r1!, {{r6, r7, r8, r9, r10, r11}}
+             sxtb16 r12, r3, ror #8
+             sxtb16 r3, r3
+             smuad r2, r3, r6
+             smlad r2, r12, r7, r2
+             sxtb16 r12, r4, ror #8
+             sxtb16 r4, r4
+             smlad r2, r4, r8, r2
+             smlad r2, r12, r9, r2
+             sxtb16 r12, r5, ror #8
+             sxtb16 r5, r5
+             smlad r2, r5, r10, r2
+             smlad r2, r12, r11, r2"
+        };
+    }
+    /// One row of the gate pass (see `gate_rows`): leaves for label 2 at a shift outside
+    /// 33..=62. z = acc_x·mx + acc_h·mh (64 bits, SMULL + SMLAL); t = hi >> (shift - 33);
+    /// (t + 1) >> 1; saturating add of the bias; SSAT to i16; then the interval z >> 7 (one
+    /// LDRD of [lo·2^7 + 2^6, hi - lo]) at position z & 127: (a + d·f) >> 7.
+    macro_rules! GATE_ROW {
+        () => {
+            "ldm r2!, {{r4, r5, r6, r7}}
+             sub r7, r7, #33
+             cmp r7, #30
+             bhs 2f
+             ldrd r8, r9, [r0]
+             smull r10, r11, r8, r4
+             smlal r10, r11, r9, r5
+             asr r11, r11, r7
+             add r11, r11, #1
+             asr r11, r11, #1
+             qadd r11, r11, r6
+             ssat r11, #16, r11
+             asr r8, r11, #7
+             add r8, r3, r8, lsl #3
+             ldrd r9, r10, [r8]
+             and r11, r11, #127
+             mla r9, r10, r11, r9
+             asr r9, r9, #7
+             str r9, [r0], #8"
+        };
+    }
+    /// One unit of the cell update (see `cell_update`):
+    /// c' = sat16(((f·c + 2^14) >> 15) + ((i·g + half) >> ig_shift)); q = sat16((c'·q_mul +
+    /// q_add) >> 3), Q3.12; tanh(q) by the table; h' = sat16((o·tanh(c') + 2^14) >> 15).
+    macro_rules! CELL_UNIT {
+        () => {
+            "ldr r11, [r0, r1]
+             ldrsh r12, [r3, #{coff}]
+             smlabb r11, r11, r12, r6
+             ldr r12, [r0, r1, lsl #1]
+             ldr lr, [r0], #8
+             smlabb r12, lr, r12, r7
+             asr r12, r12, r8
+             add r12, r12, r11, asr #15
+             ssat r12, #16, r12
+             strh r12, [r3, #{coff}]
+             smlabb r12, r12, r9, r10
+             ssat r12, #16, r12, asr #3
+             asr r11, r12, #7
+             add r11, r5, r11, lsl #3
+             ldrd r11, lr, [r11]
+             and r12, r12, #127
+             mla r11, lr, r12, r11
+             asr r11, r11, #7
+             ldr r12, [r2], #8
+             smlabb r11, r12, r11, r6
+             ssat r11, #16, r11, asr #15
+             strh r11, [r3], #2"
+        };
+    }
+    /// One leftover word; SMUAD starts the accumulator.
+    macro_rules! STUB1 {
+        () => {
+            "ldr r3, [r0], #4
+             ldrd r6, r7, [r1], #8
+             sxtb16 r12, r3, ror #8
+             sxtb16 r3, r3
+             smuad r2, r3, r6
+             smlad r2, r12, r7, r2"
+        };
+    }
+    /// Two leftover words; SMUAD starts the accumulator.
+    macro_rules! STUB2 {
+        () => {
+            "ldmia.w r0!, {{r3, r4}}
+             ldmia.w r1!, {{r6, r7, r8, r9}}
+             sxtb16 r12, r3, ror #8
+             sxtb16 r3, r3
+             smuad r2, r3, r6
+             smlad r2, r12, r7, r2
+             sxtb16 r12, r4, ror #8
+             sxtb16 r4, r4
+             smlad r2, r4, r8, r2
+             smlad r2, r12, r9, r2"
+        };
+    }
 
     /// What the assembly reads (one pointer in r0; fields at fixed offsets).
     #[repr(C)]
@@ -166,7 +487,11 @@ mod arm {
                 .and_then(|s| s.checked_add(seg))
                 .is_some_and(|end| end <= w.len()),
         };
-        if !fits || words > 3 * ASM_BLOCKS + 2 || stride % 4 != 0 || w.as_ptr() as usize % 4 != 0 {
+        if !fits
+            || words > 3 * ASM_BLOCKS + 2
+            || !stride.is_multiple_of(4)
+            || !(w.as_ptr() as usize).is_multiple_of(4)
+        {
             return false;
         }
         let p = Params {
@@ -304,6 +629,425 @@ mod arm {
             );
         }
     }
+
+    /// See `lstm_gate_rows`.
+    #[inline]
+    pub(super) fn gate_rows(
+        acc: &mut [[i32; 2]],
+        params: &[LstmRowParams],
+        table: &IntervalTable,
+    ) -> usize {
+        let n = acc.len().min(params.len());
+        if n == 0 {
+            return 0;
+        }
+        let range = acc[..n].as_mut_ptr_range();
+        // Entry 256 (in bounds): the interval of z = 0; z >> 7 is in -256..=255.
+        let mid: *const [i32; 2] = &table[256];
+        let end: *mut [i32; 2];
+        // SAFETY: the loop reads params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
+        // reads and writes acc[r] for r < n, stopping at `range.end` or at the first row whose
+        // shift is outside 33..=62 (before touching its `acc`); the table index
+        // 256 + (z >> 7) with z a saturated i16 is in 0..=511, inside `table`. It saves and
+        // restores r4-r11 and changes no memory but `acc`.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11}}",
+                // Two rows per loop pass; an odd count enters at the second.
+                "tst r12, #1",
+                "bne 3f",
+                "1:",
+                GATE_ROW!(),
+                "3:",
+                GATE_ROW!(),
+                "cmp r0, r1",
+                "bne 1b",
+                "2:",
+                "pop {{r4-r11}}",
+                inout("r0") range.start => end,
+                in("r1") range.end,
+                inout("r2") params.as_ptr() => _,
+                in("r3") mid,
+                in("r12") n,
+            );
+        }
+        // Rows done: `end` is `range.start` advanced by whole rows, within the range.
+        (end as usize - range.start as usize) / 8
+    }
+
+    /// The assembly part of `dot_i8_i16_fast`: Σ w[k]·v[k] over the first 8·⌊n / 8⌋ terms,
+    /// returned with that count; (0, 0) if `w` or `v` is not 4-byte aligned.
+    #[inline]
+    pub(super) fn dot_natural(w: &[i8], v: &[i16]) -> (usize, i32) {
+        let groups = w.len().min(v.len()) / 8;
+        if groups == 0
+            || !(w.as_ptr() as usize).is_multiple_of(4)
+            || !(v.as_ptr() as usize).is_multiple_of(4)
+        {
+            return (0, 0);
+        }
+        let sum: i32;
+        // SAFETY: the loop reads w[..8·groups] and v[..8·groups] (inside both slices, 4-byte
+        // aligned as checked) with LDM, and writes no memory. It saves and restores r4-r11.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11}}",
+                "movs r2, #0",
+                "1:",
+                "ldm r0!, {{r4, r5}}",
+                "ldm r1!, {{r6, r7, r8, r9}}",
+                // Weight bytes (b0 b1 b2 b3) → halfword pairs (b0, b1) and (b2, b3), the order
+                // of the activation words (v0 | v1 << 16), (v2 | v3 << 16).
+                "sxtb16 r10, r4",
+                "sxtb16 r11, r4, ror #8",
+                "pkhbt r12, r10, r11, lsl #16",
+                "pkhtb r10, r11, r10, asr #16",
+                "smlad r2, r12, r6, r2",
+                "smlad r2, r10, r7, r2",
+                "sxtb16 r10, r5",
+                "sxtb16 r11, r5, ror #8",
+                "pkhbt r12, r10, r11, lsl #16",
+                "pkhtb r10, r11, r10, asr #16",
+                "smlad r2, r12, r8, r2",
+                "smlad r2, r10, r9, r2",
+                "subs r3, r3, #1",
+                "bne 1b",
+                "pop {{r4-r11}}",
+                inout("r0") w.as_ptr() => _,
+                inout("r1") v.as_ptr() => _,
+                out("r2") sum,
+                inout("r3") groups => _,
+                out("r12") _,
+            );
+        }
+        (8 * groups, sum)
+    }
+
+    /// The assembly part of `permute_q15_uninit`: groups 0..2·pairs (8 values each pair),
+    /// written to out[..4·pairs]; returns the number of groups written (0 if `v` or `out` is not
+    /// word-aligned or too short, then nothing is written).
+    #[inline]
+    pub(super) fn permute_pairs_of_groups(
+        v: &[i16],
+        out: &mut [MaybeUninit<u32>],
+        pairs: usize,
+    ) -> usize {
+        if pairs == 0
+            || v.len() < 8 * pairs
+            || out.len() < 4 * pairs
+            || !(v.as_ptr() as usize).is_multiple_of(4)
+            || !(out.as_ptr() as usize).is_multiple_of(4)
+        {
+            return 0;
+        }
+        // SAFETY: reads v[..8·pairs] (4·pairs aligned words inside `v`) and writes
+        // out[..4·pairs] (inside `out`, aligned); saves and restores r4-r10.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r10}}",
+                "1:",
+                // (v0 | v1 << 16), (v2 | v3 << 16), … → (v0 | v2 << 16), (v1 | v3 << 16), …
+                "ldm r0!, {{r3, r4, r5, r6}}",
+                "pkhbt r7, r3, r4, lsl #16",
+                "pkhtb r8, r4, r3, asr #16",
+                "pkhbt r9, r5, r6, lsl #16",
+                "pkhtb r10, r6, r5, asr #16",
+                "stm r1!, {{r7, r8, r9, r10}}",
+                "subs r2, r2, #1",
+                "bne 1b",
+                "pop {{r4-r10}}",
+                inout("r0") v.as_ptr() => _,
+                inout("r1") out.as_mut_ptr() => _,
+                inout("r2") pairs => _,
+                out("r3") _,
+            );
+        }
+        2 * pairs
+    }
+
+    /// What the cell update reads, in the order of its LDM (r0-r5, r7-r10).
+    #[repr(C)]
+    struct CellParams {
+        gi: *const [i32; 2],
+        off: usize,
+        go: *const [i32; 2],
+        h: *mut i16,
+        h_end: *mut i16,
+        table: *const [i32; 2],
+        ig_half: i32,
+        ig_shift: u32,
+        q_mul: i32,
+        q_add: i32,
+    }
+
+    /// See `lstm_cell_update`.
+    #[inline]
+    pub(super) fn cell_update(
+        gates: &[[i32; 2]],
+        hn: usize,
+        state: &mut LstmState,
+        k: CellShifts,
+        table: &IntervalTable,
+    ) -> bool {
+        if hn > MAX_HIDDEN || gates.len() < 4 * hn {
+            return false;
+        }
+        if hn == 0 {
+            return true;
+        }
+        let h = state.h[..hn].as_mut_ptr_range();
+        let p = CellParams {
+            gi: gates.as_ptr(),
+            off: 8 * hn,
+            go: gates[3 * hn..].as_ptr(),
+            h: h.start,
+            h_end: h.end,
+            table: &table[256],
+            ig_half: k.ig_half,
+            ig_shift: k.ig_shift,
+            q_mul: k.q_mul,
+            q_add: k.q_add,
+        };
+        // SAFETY: for j < hn the loop reads gates[j], gates[hn + j], gates[2·hn + j] and
+        // gates[3·hn + j] (inside `gates`: 4·hn ≤ len), reads and writes state.h[j] and
+        // state.c[j] (c at C_OFFSET bytes after h in the repr(C) struct, hn ≤ MAX_HIDDEN), and
+        // reads the table at 256 + (q >> 7) with q a saturated i16: 0..=511. It saves and
+        // restores r4-r11 and lr.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "ldm r0, {{r0, r1, r2, r3, r4, r5, r7, r8, r9, r10}}",
+                "mov r6, #16384",
+                // Two units per loop pass; an odd count enters at the second.
+                "sub r11, r4, r3",
+                "tst r11, #2",
+                "bne 3f",
+                "1:",
+                CELL_UNIT!(),
+                "3:",
+                CELL_UNIT!(),
+                "cmp r3, r4",
+                "bne 1b",
+                "pop {{r4-r11, lr}}",
+                coff = const C_OFFSET,
+                inout("r0") &p as *const CellParams => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+        true
+    }
+
+    /// What the LSTM kernel reads (one pointer in r0; fields at fixed offsets).
+    #[repr(C)]
+    struct LstmParams {
+        /// +0: first row's first weight word.
+        w: *const i8,
+        /// +4: permuted x.
+        x: *const u32,
+        /// +8: permuted h.
+        h: *const u32,
+        /// +12: first output word.
+        out: *mut i32,
+        /// +16: one past the last output word.
+        out_end: *mut i32,
+        /// +20, +24: x part: 3-word blocks (≤ ASM_X_BLOCKS) and words left (0, 1 or 2).
+        x_blocks: usize,
+        x_rem: usize,
+        /// +28, +32: h part: 3-word blocks (≤ ASM_BLOCKS) and words left (0, 1 or 2).
+        h_blocks: usize,
+        h_rem: usize,
+    }
+
+    /// Runs the LSTM kernel if the arguments suit it (see `lstm_gate_sums`) and returns true
+    /// after writing every element of `out`; returns false, writing nothing, otherwise.
+    #[inline]
+    pub(super) fn lstm_rows(
+        w: &[i8],
+        stride: usize,
+        hh_offset: usize,
+        x: &[u32],
+        h: &[u32],
+        out: &mut [MaybeUninit<[i32; 2]>],
+    ) -> bool {
+        let (xw, hw) = (x.len() / 2, h.len() / 2);
+        let rows = out.len();
+        if rows == 0 {
+            return true;
+        }
+        let contiguous = hh_offset == 4 * xw && stride == hh_offset + 4 * hw;
+        let fits = rows.checked_mul(stride).is_some_and(|end| end <= w.len());
+        if !contiguous
+            || !fits
+            || xw > 3 * ASM_X_BLOCKS + 2
+            || hw > 3 * ASM_BLOCKS + 2
+            || !(w.as_ptr() as usize).is_multiple_of(4)
+        {
+            return false;
+        }
+        let range = out.as_mut_ptr_range();
+        let p = LstmParams {
+            w: w.as_ptr(),
+            x: x.as_ptr(),
+            h: h.as_ptr(),
+            out: range.start.cast::<i32>(),
+            // One past the end of `out`, as i32 words.
+            out_end: range.end.cast::<i32>(),
+            x_blocks: xw / 3,
+            x_rem: xw % 3,
+            h_blocks: hw / 3,
+            h_rem: hw % 3,
+        };
+        // SAFETY: the checks above guarantee that the kernel reads `w[..rows·stride]` (inside
+        // `w`, word-aligned: `w` is and stride = 4·(xw + hw)), `x[..2·xw]` and `h[..2·hw]`
+        // (aligned `[u32]`s), and writes the 2·rows words of `out` (exclusively borrowed, the
+        // layout of [[i32; 2]]); the block counts ≤ their unrolled copies and remainders < 3
+        // keep the computed jumps inside the kernel. It saves and restores r4-r11, lr and sp.
+        unsafe { lstm_kernel(&p) };
+        true
+    }
+
+    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_rows`] checks.
+    #[inline(never)]
+    unsafe fn lstm_kernel(p: &LstmParams) {
+        // Registers as in `kernel`: r0 weight pointer (one stream: x part, h part, next row),
+        // r1 activation pointer, r2 accumulator, r3-r5 weight words, r6-r11 activation words,
+        // r12 scratch, lr output pointer. Stack: [sp] x, [sp+4] x entry, [sp+8] x block entry,
+        // [sp+12] h, [sp+16] h entry, [sp+20] h block entry, [sp+24] out_end.
+        // Entries: a remainder stub (1 or 2 words, starting with SMUAD so that it also clears
+        // the accumulator) or, with no remainder, a stub that clears it; each stub then jumps to
+        // the block entry (h: the end of the unrolled blocks - blocks · 56 bytes; x: the SMLAD
+        // copy of its one block). An x part of exactly one block (9 to 12 inputs) enters a
+        // SMUAD copy of the block directly, which falls through to the store.
+        // SAFETY: see the caller; every memory access is inside the buffers `p` describes.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "sub sp, sp, #28",
+                "ldr r1, [r0, #4]",
+                "str r1, [sp, #0]",
+                "ldr r1, [r0, #8]",
+                "str r1, [sp, #12]",
+                "ldr r1, [r0, #16]",
+                "str r1, [sp, #24]",
+                "movs r3, #56",
+                // h block entry. Every ADR sits on a word boundary (see `kernel`).
+                "ldr r1, [r0, #28]",
+                ".p2align 2",
+                "adr.w r2, 22f",
+                "mls r2, r1, r3, r2",
+                "orr r2, r2, #1",
+                "str r2, [sp, #20]",
+                // x block entry after a stub: the SMLAD copy of the block, or none.
+                "ldr r1, [r0, #20]",
+                ".p2align 2",
+                "adr.w r2, 12f",
+                "cbz r1, 35f",
+                ".p2align 2",
+                "adr.w r2, 18f",
+                "35:",
+                "orr r2, r2, #1",
+                "str r2, [sp, #8]",
+                // x entry: no remainder: the SMUAD block (falls through to the store) or
+                // the clearing stub; else the stub for 1 or 2 words.
+                "ldr r3, [r0, #24]",
+                "cbnz r3, 36f",
+                ".p2align 2",
+                "adr.w r2, 14f",
+                "cbz r1, 37f",
+                ".p2align 2",
+                "adr.w r2, 11f",
+                "b 37f",
+                "36:",
+                ".p2align 2",
+                "adr.w r2, 15f",
+                "cmp r3, #1",
+                "beq 37f",
+                ".p2align 2",
+                "adr.w r2, 16f",
+                "37:",
+                "orr r2, r2, #1",
+                "str r2, [sp, #4]",
+                // h entry by remainder.
+                "ldr r1, [r0, #32]",
+                ".p2align 2",
+                "adr.w r2, 24f",
+                "cmp r1, #1",
+                "bne 33f",
+                ".p2align 2",
+                "adr.w r2, 25f",
+                "33:",
+                "cmp r1, #2",
+                "bne 34f",
+                ".p2align 2",
+                "adr.w r2, 26f",
+                "34:",
+                "orr r2, r2, #1",
+                "str r2, [sp, #16]",
+                "ldr lr, [r0, #12]",
+                "ldr r0, [r0, #0]",
+                // Row loop: x part.
+                "1:",
+                "ldr r1, [sp, #0]",
+                "ldr pc, [sp, #4]",
+                "11:",
+                BLOCK_FIRST!(),
+                "12:",
+                "str r2, [lr], #4",
+                // h part.
+                "ldr r1, [sp, #12]",
+                "ldr pc, [sp, #16]",
+                "21:",
+                ".rept {hblocks}",
+                BLOCK!(),
+                ".endr",
+                "22:",
+                ".if (22b - 21b) != 56 * {hblocks}",
+                ".error \"dsp lstm kernel: unrolled h block is not 56 bytes\"",
+                ".endif",
+                "str r2, [lr], #4",
+                "ldr r12, [sp, #24]",
+                "cmp lr, r12",
+                "bne 1b",
+                "b 9f",
+                // x stubs: none, one, two leftover words.
+                "14:",
+                "movs r2, #0",
+                "b 12b",
+                "15:",
+                STUB1!(),
+                "ldr pc, [sp, #8]",
+                "16:",
+                STUB2!(),
+                "ldr pc, [sp, #8]",
+                // The x block after a stub.
+                "18:",
+                BLOCK!(),
+                "b 12b",
+                // h stubs.
+                "24:",
+                "movs r2, #0",
+                "ldr pc, [sp, #20]",
+                "25:",
+                STUB1!(),
+                "ldr pc, [sp, #20]",
+                "26:",
+                STUB2!(),
+                "ldr pc, [sp, #20]",
+                "9:",
+                "add sp, sp, #28",
+                "pop {{r4-r11, lr}}",
+                hblocks = const ASM_BLOCKS,
+                inout("r0") p as *const LstmParams => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+    }
 }
 
 #[cfg(test)]
@@ -390,5 +1134,40 @@ mod tests {
         let mut short = [0u32; 3];
         assert_eq!(permute_q15(&[1, 2, 3, 4, 5], &mut short), 2);
         assert_eq!(short[..2], [1 | 3 << 16, 2 | 4 << 16]);
+    }
+    #[test]
+    fn lstm_gate_sums_equal_two_row_kernels() {
+        // Contiguous rows (xw = 3, hw = 5), a gapped layout and one too short for its rows.
+        let x: Vec<u32> = (0..6u32).map(|i| i.wrapping_mul(0x9E37_79B9)).collect();
+        let h: Vec<u32> = (0..10u32)
+            .map(|i| i.wrapping_mul(0x85EB_CA6B) ^ 0x8000_7FFF)
+            .collect();
+        let w: Vec<i8> = (0..200).map(|i| (i * 73 + 11) as i8).collect();
+        for (stride, hh, len) in [(32, 12, 160), (40, 16, 200), (32, 12, 100), (0, 0, 0)] {
+            let w = &w[..len];
+            let mut buf = [core::mem::MaybeUninit::uninit(); 5];
+            let got = lstm_gate_sums(w, stride, hh, &x, &h, &mut buf).to_vec();
+            let (mut ax, mut ah) = ([0i32; 5], [0i32; 5]);
+            dot_rows_i8_q15_portable(w, stride, &x, &mut ax);
+            dot_rows_i8_q15_portable(w.get(hh..).unwrap_or(&[]), stride, &h, &mut ah);
+            let want: Vec<[i32; 2]> = ax.iter().zip(&ah).map(|(&a, &b)| [a, b]).collect();
+            assert_eq!(got, want, "stride {stride}, hh {hh}, len {len}");
+            let mut port = [[0i32; 2]; 5];
+            lstm_gate_sums_portable(w, stride, hh, &x, &h, &mut port);
+            assert_eq!(port.to_vec(), want);
+        }
+    }
+    #[test]
+    fn permute_uninit_equals_permute() {
+        let v: Vec<i16> = (0..140).map(|i| (i as i16).wrapping_mul(-4321)).collect();
+        for n in 0..=140 {
+            for words in [0, 1, 3, 8, 70, 71] {
+                let mut want = vec![0u32; words];
+                let k = permute_q15(&v[..n], &mut want);
+                let mut buf = vec![core::mem::MaybeUninit::uninit(); words];
+                let got = permute_q15_uninit(&v[..n], &mut buf);
+                assert_eq!(got, &want[..k], "n = {n}, words = {words}");
+            }
+        }
     }
 }

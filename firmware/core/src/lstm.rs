@@ -15,14 +15,18 @@
 //! requantisation ([`LstmRowParams`]). All rounding is to nearest, so the host and the
 //! Cortex-M4 compute the same bits.
 
-use crate::activation::{sigmoid, tanh};
+use crate::activation::{self, sigmoid, tanh};
 use crate::blob::{LstmRowParams, LstmTensors};
-use crate::dsp::{dot_rows_i8_q15, permute_q15};
-use crate::fixed::{round_shift_i32, round_shift_i64, sat_i16, sat_i16_wide};
+use crate::dsp::{lstm_cell_update, lstm_gate_rows, lstm_gate_sums, permute_q15_uninit};
+use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
 use crate::{MAX_HIDDEN, MAX_INPUT};
+use core::mem::MaybeUninit;
 
-/// One LSTM's recurrent state for one channel.
+/// One LSTM's recurrent state for one channel. `repr(C)`: the assembly cell update
+/// ([`crate::dsp::lstm_cell_update`]) finds c at a fixed offset from h; aligned to 4 bytes so
+/// that the dense layer's kernel ([`crate::dsp::dot_i8_i16_fast`]) can load h by words.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[repr(C, align(4))]
 pub struct LstmState {
     /// Hidden state h, Q0.15. Entries past the model's H stay 0 (the padded kernel relies on it).
     pub h: [i16; MAX_HIDDEN],
@@ -44,6 +48,10 @@ impl LstmState {
     }
 }
 
+/// Bytes from `h[j]` to `c[j]` in [`LstmState`].
+pub const C_OFFSET: usize = 2 * MAX_HIDDEN;
+const _: () = assert!(core::mem::offset_of!(LstmState, c) == C_OFFSET);
+
 impl Default for LstmState {
     fn default() -> Self {
         Self::new()
@@ -53,19 +61,22 @@ impl Default for LstmState {
 /// Gate pre-activation of one row, Q3.12.
 #[inline(always)]
 fn requant(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
-    // i64: acc_x < 2^26 and acc_h < 2^29 times a multiplier < 2^31 stay below 2^61.
-    let z = acc_x as i64 * p.mx as i64 + acc_h as i64 * p.mh as i64;
     let shift = p.shift as u32;
-    if (33..=62).contains(&shift) {
-        // The same bits in 32-bit arithmetic (no variable 64-bit shift on the M4):
-        // ⌊(z + 2^(s-1)) / 2^s⌋ = ⌊(⌊z / 2^(s-1)⌋ + 1) / 2⌋, and as s - 1 ≥ 32,
-        // ⌊z / 2^(s-1)⌋ = ⌊hi / 2^(s-33)⌋ with hi = ⌊z / 2^32⌋. (t >> 1) + (t & 1) is
-        // ⌊(t + 1) / 2⌋ without overflow; a saturating add before the i16 saturation gives the
-        // same result as the wide add.
-        let t = ((z >> 32) as i32) >> (shift - 33);
-        sat_i16(((t >> 1) + (t & 1)).saturating_add(p.bias_q12))
+    let k = shift.wrapping_sub(33);
+    if k < 30 {
+        // shift in 33..=62: the same bits as [`requant_wide`] from the high word alone (no
+        // variable 64-bit shift on the M4). The rounding half 2^(shift-1) = 2^k · 2^32 goes
+        // into the 64-bit accumulator's high word first (SMLAL accumulates onto it), and as
+        // shift ≥ 32, ⌊Z / 2^shift⌋ = ⌊⌊Z / 2^32⌋ / 2^(shift-32)⌋. No overflow: |acc_x·mx| <
+        // 2^57, |acc_h·mh| < 2^60, half ≤ 2^61. The bias is added with saturation before the
+        // i16 saturation: the same result as the wide add.
+        let half = ((1i32 << (k & 31)) as i64) << 32;
+        let z = half + acc_x as i64 * p.mx as i64 + acc_h as i64 * p.mh as i64;
+        let t = ((z >> 32) as i32) >> (k + 1);
+        sat_i16(t.saturating_add(p.bias_q12))
     } else {
-        requant_wide(p, z)
+        // i64: acc_x < 2^26 and acc_h < 2^29 times a multiplier < 2^31 stay below 2^61.
+        requant_wide(p, acc_x as i64 * p.mx as i64 + acc_h as i64 * p.mh as i64)
     }
 }
 
@@ -75,16 +86,62 @@ fn requant_wide(p: &LstmRowParams, z: i64) -> i16 {
     sat_i16_wide(round_shift_i64(z, p.shift as u32) + p.bias_q12 as i64)
 }
 
-/// Cell state Q(15-C).C → Q3.12 for tanh, saturated (tanh is flat beyond ±8 anyway).
-#[inline(always)]
-fn cell_to_q12(c: i16, cell_frac_bits: u32) -> i16 {
-    if cell_frac_bits > 12 {
-        // Drop the extra fractional bits, rounded.
-        round_shift_i32(c as i32, cell_frac_bits - 12) as i16
-    } else {
-        // Fewer fractional bits: scale up; C >= 1 so the shift is at most 11 and fits i32.
-        sat_i16((c as i32) << (12 - cell_frac_bits))
+/// Loop-invariant shifts of the cell update, from the cell format C (clamped to 1..=15, the
+/// range the blob parser admits).
+#[derive(Clone, Copy, Debug)]
+pub struct CellShifts {
+    /// i·g is Q0.30; shifting it right by 30 - C (15..=29), rounded, gives Q(15-C).C.
+    pub ig_shift: u32,
+    /// 2^(ig_shift - 1).
+    pub ig_half: i32,
+    /// Cell → Q3.12 for tanh: `sat16(((c << up) + half) >> down)`; for C > 12 that is a
+    /// rounded right shift by C - 12 (up = 0), for C ≤ 12 a saturated left shift by 12 - C
+    /// (down = 0, half = 0).
+    up: u32,
+    half: i32,
+    down: u32,
+    /// The same conversion as `sat16((c·q_mul + q_add) >> 3)` (the assembly's form): for C > 12,
+    /// q_mul = 2^(3 - down), q_add = 4, since ⌊(c·2^(3-d) + 2^2) / 2^3⌋ = ⌊(c + 2^(d-1)) / 2^d⌋;
+    /// for C ≤ 12, q_mul = 2^(up + 3) ≤ 2^14, q_add = 0. |c·q_mul| ≤ 2^29.
+    pub q_mul: i32,
+    /// See `q_mul`.
+    pub q_add: i32,
+}
+
+impl CellShifts {
+    /// The shifts for cell format C = `cell_frac_bits`.
+    pub fn new(cell_frac_bits: u32) -> Self {
+        let cb = cell_frac_bits.clamp(1, 15);
+        let ig_shift = 30 - cb;
+        let (up, down) = if cb > 12 { (0, cb - 12) } else { (12 - cb, 0) };
+        Self {
+            ig_shift,
+            ig_half: 1 << (ig_shift - 1),
+            up,
+            half: if down > 0 { 1 << (down - 1) } else { 0 },
+            down,
+            q_mul: 1 << (up + 3 - down),
+            q_add: if down > 0 { 4 } else { 0 },
+        }
     }
+}
+
+/// One unit's cell update from its four gate activations (Q0.15):
+/// `c' = sat(round(f·c / 2^15) + round(i·g / 2^(30-C)))`, `h' = sat(round(o·tanh(c') / 2^15))`.
+///
+/// Every product of two i16 lies in [-2^30 + 2^15, 2^30]; with a rounding half of at most
+/// 2^28 it stays below 2^31, so these `i32` sums equal the wide ones.
+#[inline(always)]
+fn cell_unit(k: CellShifts, [i, f, g, o]: [i16; 4], c: &mut i16, h: &mut i16) {
+    // f·c: Q0.15 × Q(15-C).C, >> 15 keeps the cell's format.
+    let fc = (f as i32 * *c as i32 + (1 << 14)) >> 15;
+    let ig = (i as i32 * g as i32 + k.ig_half) >> k.ig_shift;
+    let cn = sat_i16(fc + ig);
+    *c = cn;
+    // Q(15-C).C → Q3.12, saturated (tanh is flat beyond ±8 anyway). c << up ≤ 2^26.
+    let cq = sat_i16((((cn as i32) << k.up) + k.half) >> k.down);
+    // o·tanh(c): Q0.15 × Q0.15 >> 15 = Q0.15.
+    *h = sat_i16((o as i32 * tanh(cq) as i32 + (1 << 14)) >> 15);
 }
 
 /// Advances `state` by one step with input `x` (Q3.12, `t.inputs` values).
@@ -97,74 +154,105 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     let x = &x[..t.inputs.min(x.len())];
     // x and h in the dot kernel's lane order, zero-padded to whole groups of 4 (the weights'
     // padding meets zeros, so the sums equal the plain dot products over I and H terms).
-    let mut xp = [0u32; MAX_INPUT.div_ceil(4) * 2];
-    let xw = permute_q15(x, &mut xp);
-    let mut hp = [0u32; MAX_HIDDEN / 2];
-    let hw = permute_q15(&state.h[..hn], &mut hp);
+    // Written by the permutation, so not zeroed first.
+    let mut xbuf = [MaybeUninit::<u32>::uninit(); MAX_INPUT.div_ceil(4) * 2];
+    let xp = permute_q15_uninit(x, &mut xbuf);
+    let mut hbuf = [MaybeUninit::<u32>::uninit(); MAX_HIDDEN / 2];
+    let hp = permute_q15_uninit(&state.h[..hn], &mut hbuf);
     let stride = t.row_len.max(1);
     let rows = (4 * hn).min(t.rows.len()).min(t.weights.len() / stride);
-    let w_hh = t.weights.get(t.hh_offset..).unwrap_or(&[]);
-    // Gate activations, Q0.15, in order i, f, g, o.
-    let mut gates = [0i16; 4 * MAX_HIDDEN];
-    // One gate (H rows) at a time keeps the accumulators small on the stack.
-    let chunk = hn.max(1);
-    let mut acc_x = [0i32; MAX_HIDDEN];
-    let mut acc_h = [0i32; MAX_HIDDEN];
-    let mut r0 = 0;
-    while r0 < rows {
-        let n = chunk.min(rows - r0);
-        let off = r0 * stride;
-        dot_rows_i8_q15(
-            t.weights.get(off..).unwrap_or(&[]),
-            stride,
-            &xp[..xw],
-            &mut acc_x[..n],
-        );
-        dot_rows_i8_q15(
-            w_hh.get(off..).unwrap_or(&[]),
-            stride,
-            &hp[..hw],
-            &mut acc_h[..n],
-        );
-        // Rows 2H..3H are the cell candidate g (tanh); the others are sigmoid gates.
-        let is_g = r0 / chunk == 2;
-        for (((g, p), &ax), &ah) in gates[r0..r0 + n]
-            .iter_mut()
-            .zip(&t.rows[r0..r0 + n])
-            .zip(&acc_x[..n])
-            .zip(&acc_h[..n])
-        {
-            let z = requant(p, ax, ah);
-            *g = if is_g { tanh(z) } else { sigmoid(z) };
+    // Rows in PyTorch's gate order i, f, g, o: row g·H + j belongs to gate g of unit j.
+    // acc[r] = [Σ W_ih[r]·x, Σ W_hh[r]·h]; written by the kernel, so not zeroed first.
+    let mut acc = [MaybeUninit::<[i32; 2]>::uninit(); 4 * MAX_HIDDEN];
+    let acc = lstm_gate_sums(t.weights, stride, t.hh_offset, xp, hp, &mut acc[..rows]);
+    // Pass 1, row by row: each gate's activation (Q0.15) replaces its x sum. Rows 2H..3H are
+    // the cell candidate g (tanh); the others are sigmoid gates.
+    let (sig_if, rest) = acc.split_at_mut((2 * hn).min(rows));
+    let (cand, sig_o) = rest.split_at_mut(hn.min(rest.len()));
+    let params = |from: usize| t.rows.get(from..).unwrap_or(&[]);
+    gate_activations(sig_if, params(0), false);
+    gate_activations(cand, params(2 * hn), true);
+    gate_activations(sig_o, params(3 * hn), false);
+    // Pass 2, unit by unit: the cell update from the four gates i, f, g, o.
+    let k = CellShifts::new(t.cell_frac_bits);
+    if rows == 4 * hn {
+        // Every row present (always, for a validated blob).
+        cell_update(acc, hn, state, k);
+    } else {
+        // Some rows missing (inconsistent tensors): their gates are 0.
+        let (c, h) = (&mut state.c[..hn], &mut state.h[..hn]);
+        for (j, (c, h)) in c.iter_mut().zip(h.iter_mut()).enumerate() {
+            let g = |n: usize| acc.get(n * hn + j).map_or(0, |a| a[0] as i16);
+            cell_unit(k, [g(0), g(1), g(2), g(3)], c, h);
         }
-        r0 += n;
     }
-    let cb = t.cell_frac_bits;
-    // i·g is Q0.30; shifting by 30 - C puts it in the cell's Q(15-C).C.
-    let ig_shift = 30 - cb.clamp(1, 15);
-    for j in 0..hn {
-        let (i, f, g, o) = (
-            gates[j],
-            gates[hn + j],
-            gates[2 * hn + j],
-            gates[3 * hn + j],
+}
+
+/// The cell update of units 0..hn (at most [`MAX_HIDDEN`]) from the gate activations
+/// `gates[g·hn + j][0]` (gate order i, f, g, o; the low 16 bits count): in assembly
+/// ([`crate::dsp::lstm_cell_update`]) where it runs, else [`cell_update_portable`].
+pub fn cell_update(gates: &[[i32; 2]], hn: usize, state: &mut LstmState, k: CellShifts) {
+    if !lstm_cell_update(gates, hn, state, k, activation::table(true)) {
+        cell_update_portable(gates, hn, state, k);
+    }
+}
+
+/// The reference of [`cell_update`], all in Rust. Units without four gates are left alone.
+pub fn cell_update_portable(gates: &[[i32; 2]], hn: usize, state: &mut LstmState, k: CellShifts) {
+    let hn = hn.min(MAX_HIDDEN);
+    let g = |n: usize| gates.get(n * hn..).unwrap_or(&[]);
+    let (ai, af, ag, ao) = (g(0), g(1), g(2), g(3));
+    let units = ai.iter().zip(af).zip(ag).zip(ao);
+    let (c, h) = (&mut state.c[..hn], &mut state.h[..hn]);
+    for ((((i, f), g), o), (c, h)) in units.zip(c.iter_mut().zip(h.iter_mut())) {
+        cell_unit(k, [i[0], f[0], g[0], o[0]].map(|v| v as i16), c, h);
+    }
+}
+
+/// `a[0] = f(requant(p, a[0], a[1]))` for each row's sums `a` and parameters `p`, f = σ or
+/// tanh (`tanh`): a gate's activations (Q0.15) from its rows' dot products. Runs in assembly
+/// ([`crate::dsp::lstm_gate_rows`]) where it can; the rows it leaves (a requantisation shift
+/// outside 33..=62, or every row on other targets) are done here, one at a time.
+pub fn gate_activations(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
+    let table = activation::table(tanh);
+    let mut r = 0;
+    loop {
+        let (a, q) = (
+            acc.get_mut(r..).unwrap_or(&mut []),
+            p.get(r..).unwrap_or(&[]),
         );
-        // f·c: Q0.15 × Q(15-C).C, >> 15 keeps the cell's format.
-        let fc = round_shift_i32(f as i32 * state.c[j] as i32, 15);
-        let ig = round_shift_i32(i as i32 * g as i32, ig_shift);
-        let c = sat_i16(fc + ig);
-        state.c[j] = c;
-        // o·tanh(c): Q0.15 × Q0.15 >> 15 = Q0.15.
-        state.h[j] = sat_i16(round_shift_i32(
-            o as i32 * tanh(cell_to_q12(c, cb)) as i32,
-            15,
-        ));
+        r += lstm_gate_rows(a, q, table);
+        let (Some(a), Some(q)) = (acc.get_mut(r), p.get(r)) else {
+            break;
+        };
+        a[0] = activation::lookup(table, requant(q, a[0], a[1])) as i32;
+        r += 1;
+    }
+}
+
+/// The reference of [`gate_activations`], all in Rust.
+pub fn gate_activations_portable(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
+    let f = if tanh { activation::tanh } else { sigmoid };
+    for (a, p) in acc.iter_mut().zip(p) {
+        a[0] = f(requant(p, a[0], a[1])) as i32;
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cell_to_q12_forms_agree() {
+        for cb in 1..=15 {
+            let k = CellShifts::new(cb);
+            for c in i16::MIN..=i16::MAX {
+                let shifts = sat_i16((((c as i32) << k.up) + k.half) >> k.down);
+                let asm_form = sat_i16((c as i32 * k.q_mul + k.q_add) >> 3);
+                assert_eq!(shifts, asm_form, "C = {cb}, c = {c}");
+            }
+        }
+    }
 
     #[test]
     fn requant_fast_path_equals_wide_definition() {

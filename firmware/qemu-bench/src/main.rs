@@ -15,13 +15,16 @@ mod harness;
 mod insns;
 
 use core::hint::black_box;
+use core::mem::MaybeUninit;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::hprintln;
-use slipguard_core::blob::CRC32;
+use slipguard_core::blob::{CRC32, LstmRowParams};
 use slipguard_core::const_math;
 use slipguard_core::decision::p_unstable;
 use slipguard_core::dsp::{
-    MAX_ASM_VALUES, dot_i8_i16, dot_rows_i8_q15, dot_rows_i8_q15_portable, permute_q15,
+    MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, dot_i8_i16, dot_i8_i16_fast, dot_rows_i8_q15,
+    dot_rows_i8_q15_portable, lstm_gate_sums, lstm_gate_sums_portable, permute_q15,
+    permute_q15_uninit,
 };
 use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
 use slipguard_core::lstm::{self, LstmState};
@@ -177,6 +180,284 @@ fn check_dsp_kernel() {
     );
 }
 
+/// Rows per call in the LSTM kernel checks.
+const LSTM_ROWS: usize = 3;
+/// Largest row (bytes) in the LSTM kernel checks: both parts at their assembly maximum.
+const LSTM_MAX_ROW: usize = 4 * (MAX_ASM_X_WORDS + MAX_ASM_H_WORDS);
+
+/// LSTM gate rows, word-aligned, plus 4 spare bytes for a misaligned view.
+#[repr(C, align(4))]
+struct LstmRows([i8; LSTM_ROWS * LSTM_MAX_ROW + 4]);
+
+/// The fused LSTM kernel (`lstm_gate_sums`, assembly on this target) against its portable
+/// reference for every x length 0..=MAX_ASM_X_WORDS words and h length 0..=MAX_ASM_H_WORDS
+/// words, on random and extreme data; also the layouts it must leave to the portable code
+/// (gaps between the parts, misaligned weights, too few weights).
+fn check_lstm_kernel() {
+    let mut rng = Rng(0x0bad_cafe);
+    let mut first_bad: Option<(&str, usize, usize)> = None;
+    let mut cases = 0u32;
+    for pattern in 0..3u32 {
+        for xw in 0..=MAX_ASM_X_WORDS {
+            for hw in 0..=MAX_ASM_H_WORDS {
+                let mut w = LstmRows([0; LSTM_ROWS * LSTM_MAX_ROW + 4]);
+                for b in w.0.iter_mut() {
+                    let r = rng.next();
+                    *b = match pattern {
+                        0 => r as i8,
+                        1 => -128,
+                        _ => {
+                            if r & 1 == 0 {
+                                -128
+                            } else {
+                                127
+                            }
+                        }
+                    };
+                }
+                let mut act = [0u32; 2 * (MAX_ASM_X_WORDS + MAX_ASM_H_WORDS)];
+                for a in act.iter_mut() {
+                    let r = rng.next();
+                    *a = match pattern {
+                        0 => r,
+                        1 => 0x8000_8000,
+                        _ => {
+                            (if r & 1 == 0 { 0x8000 } else { 0x7fff })
+                                | (if r & 2 == 0 { 0x8000_0000 } else { 0x7fff_0000 })
+                        }
+                    };
+                }
+                let (x, h) = act.split_at(2 * xw);
+                let h = &h[..2 * hw];
+                let hh = 4 * xw;
+                let stride = hh + 4 * hw;
+                // Contiguous rows (the assembly path), a gap after each part, a misaligned view
+                // and a weight slice one byte too short (both portable).
+                let layouts: [(&str, usize, usize, usize, usize); 4] = [
+                    ("contiguous", 0, stride, hh, LSTM_ROWS * stride),
+                    ("gaps", 0, stride + 4, hh + 4, LSTM_ROWS * (stride + 4)),
+                    ("misaligned", 1, stride, hh, LSTM_ROWS * stride),
+                    (
+                        "short",
+                        0,
+                        stride,
+                        hh,
+                        (LSTM_ROWS * stride).saturating_sub(1),
+                    ),
+                ];
+                for (name, start, stride, hh, len) in layouts {
+                    let len = len.min(LSTM_ROWS * LSTM_MAX_ROW);
+                    let wv = &w.0[start..start + len];
+                    let mut buf = [MaybeUninit::<[i32; 2]>::uninit(); LSTM_ROWS];
+                    let got = lstm_gate_sums(black_box(wv), stride, hh, x, h, &mut buf);
+                    let mut want = [[0i32; 2]; LSTM_ROWS];
+                    lstm_gate_sums_portable(wv, stride, hh, x, h, &mut want);
+                    cases += 1;
+                    if got[..] != want[..] && first_bad.is_none() {
+                        first_bad = Some((name, xw, hw));
+                    }
+                }
+            }
+        }
+    }
+    hprintln!("lstm kernel: {} cases", cases);
+    harness::check_equal(
+        "lstm kernel == portable (first layout, x words, h words)",
+        &first_bad,
+        &None,
+    );
+}
+
+/// The assembly gate pass (`lstm::gate_activations`) against the Rust one, σ and tanh, on
+/// random sums and parameters: shifts 33..=62 (assembly) mixed with 1..=32 (the rows the
+/// assembly leaves to Rust), extreme sums, biases and multipliers.
+fn check_gate_pass() {
+    let mut rng = Rng(0x5eed_1234);
+    let mut first_bad = None;
+    for round in 0..40u32 {
+        let mut acc = [[0i32; 2]; 64];
+        let mut params = [LstmRowParams {
+            mx: 0,
+            mh: 0,
+            bias_q12: 0,
+            shift: 33,
+        }; 64];
+        for (i, (a, p)) in acc.iter_mut().zip(params.iter_mut()).enumerate() {
+            let edge = |r: u32, bits: u32| -> i32 {
+                match r % 5 {
+                    0 => (1 << (bits - 1)) - 1,
+                    1 => -(1 << (bits - 1)),
+                    _ => (rng_bits(r) as i32) >> (32 - bits),
+                }
+            };
+            *a = [edge(rng.next(), 26), edge(rng.next(), 29)];
+            p.mx = (rng.next() >> 1) as i32;
+            p.mh = (rng.next() >> 1) as i32;
+            p.bias_q12 = if i % 7 == 0 {
+                rng.next() as i32
+            } else {
+                (rng.next() as i32) >> 17
+            };
+            // Mostly the assembly's range; every few rows (more in later rounds) a small shift.
+            p.shift = if rng.next() % 8 < round % 4 {
+                1 + (rng.next() % 32) as i32
+            } else {
+                33 + (rng.next() % 30) as i32
+            };
+        }
+        for tanh in [false, true] {
+            let mut got = acc;
+            let mut want = acc;
+            lstm::gate_activations(black_box(&mut got), &params, tanh);
+            lstm::gate_activations_portable(&mut want, &params, tanh);
+            if got != want && first_bad.is_none() {
+                first_bad = Some((round, tanh));
+            }
+        }
+    }
+    harness::check_equal(
+        "lstm gate pass asm == portable (first round, tanh)",
+        &first_bad,
+        &None,
+    );
+}
+
+/// Spreads a random word's bits (a helper for [`check_gate_pass`]).
+fn rng_bits(r: u32) -> u32 {
+    r.wrapping_mul(0x9E37_79B9)
+}
+
+/// The assembly cell update (`lstm::cell_update`) against the Rust one for every cell format
+/// 1..=15 and hidden sizes 1..=128, on random and extreme gates and cell states.
+fn check_cell_update() {
+    let mut rng = Rng(0xce11_0001);
+    let mut first_bad = None;
+    for cb in 1..=15u32 {
+        for hn in [1usize, 2, 7, 64, 127, 128] {
+            let mut gates = [[0i32; 2]; 4 * 128];
+            for (r, g) in gates.iter_mut().enumerate() {
+                let x = rng.next();
+                let v = match (x >> 20) % 4 {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    _ => x as i16,
+                };
+                // Sigmoid gates are 0..=32767 in the model; any i16 must still agree.
+                g[0] = if r % 3 == 0 {
+                    v as i32
+                } else {
+                    (v as i32).abs().min(32767)
+                };
+                g[1] = rng.next() as i32;
+            }
+            let mut st = LstmState::new();
+            for (c, h) in st.c.iter_mut().zip(st.h.iter_mut()) {
+                let x = rng.next();
+                *c = match x % 5 {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    _ => (x >> 8) as i16,
+                };
+                *h = (x >> 3) as i16;
+            }
+            let k = lstm::CellShifts::new(cb);
+            let mut got = st.clone();
+            lstm::cell_update(black_box(&gates[..4 * hn]), hn, &mut got, k);
+            let mut want = st;
+            lstm::cell_update_portable(&gates[..4 * hn], hn, &mut want, k);
+            if got != want && first_bad.is_none() {
+                first_bad = Some((cb, hn));
+            }
+        }
+    }
+    harness::check_equal(
+        "lstm cell update asm == portable (first C, H)",
+        &first_bad,
+        &None,
+    );
+}
+
+/// Activations, word-aligned (the natural-order kernel loads them by words), plus a spare one
+/// for a misaligned view.
+#[repr(C, align(4))]
+struct Acts([i16; MAX_N + 2]);
+
+/// `dot_i8_i16_fast` (assembly for whole groups of 8 on this target) against `dot_i8_i16`
+/// for every length 0..=MAX_N, random and extreme data, aligned and misaligned.
+fn check_dense_kernel() {
+    let mut rng = Rng(0xde25_e000);
+    let mut first_bad = None;
+    for pattern in 0..3u32 {
+        for n in 0..=MAX_N {
+            let mut w = Rows([0; ROWS * STRIDE + 4]);
+            let mut v = Acts([0; MAX_N + 2]);
+            for b in w.0.iter_mut() {
+                let r = rng.next();
+                *b = match pattern {
+                    0 => r as i8,
+                    1 => -128,
+                    _ => {
+                        if r & 1 == 0 {
+                            -128
+                        } else {
+                            127
+                        }
+                    }
+                };
+            }
+            for x in v.0.iter_mut() {
+                let r = rng.next();
+                *x = match pattern {
+                    0 => r as i16,
+                    1 => i16::MIN,
+                    _ => {
+                        if r & 1 == 0 {
+                            i16::MIN
+                        } else {
+                            i16::MAX
+                        }
+                    }
+                };
+            }
+            for (wo, vo) in [(0, 0), (1, 0), (0, 1)] {
+                let (ws, vs) = (&w.0[wo..wo + n], &v.0[vo..vo + n]);
+                let got = dot_i8_i16_fast(black_box(ws), vs);
+                let want = dot_i8_i16(ws, vs);
+                if got != want && first_bad.is_none() {
+                    first_bad = Some((pattern, n, wo, vo));
+                }
+            }
+        }
+    }
+    // The permutation's assembly (groups of 8 values, aligned) against the portable one.
+    let mut bad_perm = None;
+    for n in 0..=MAX_N {
+        for off in [0, 1] {
+            let v = Acts(core::array::from_fn(|i| {
+                (i as i16).wrapping_mul(-3217) ^ 0x5a5a
+            }));
+            let vs = &v.0[off..off + n];
+            let mut want = [0u32; MAX_N / 2 + 2];
+            let k = permute_q15(vs, &mut want);
+            let mut buf = [MaybeUninit::<u32>::uninit(); MAX_N / 2 + 2];
+            let got = permute_q15_uninit(black_box(vs), &mut buf);
+            if got != &want[..k] && bad_perm.is_none() {
+                bad_perm = Some((n, off));
+            }
+        }
+    }
+    harness::check_equal(
+        "permute_q15_uninit == permute_q15 (first n, offset)",
+        &bad_perm,
+        &None,
+    );
+    harness::check_equal(
+        "dense kernel dot_i8_i16_fast == dot_i8_i16 (first pattern, n, offsets)",
+        &first_bad,
+        &None,
+    );
+}
+
 #[entry]
 fn main() -> ! {
     let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
@@ -196,6 +477,10 @@ fn main() -> ! {
     );
 
     check_dsp_kernel();
+    check_lstm_kernel();
+    check_gate_pass();
+    check_cell_update();
+    check_dense_kernel();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,
