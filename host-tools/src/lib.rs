@@ -10,6 +10,7 @@ pub mod eagle;
 pub mod error;
 pub mod labels;
 pub mod metrics;
+pub mod monitor;
 pub mod plot;
 pub mod recording;
 pub mod sim;

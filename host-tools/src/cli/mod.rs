@@ -5,6 +5,7 @@
 mod baselines;
 mod dataset;
 mod label;
+mod monitor;
 mod progress;
 mod simulate;
 
@@ -31,6 +32,8 @@ pub enum Command {
     Simulate(simulate::Args),
     /// The paper's Table I baselines (NB, KNN, SVM), cross-validated by trial.
     Baselines(baselines::Args),
+    /// Watch the firmware's flag stream (serial port or capture): live view, loss counts, recording.
+    Monitor(monitor::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -39,6 +42,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Label(a) => label::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Baselines(a) => baselines::run(a),
+        Command::Monitor(a) => monitor::run(a),
     }
 }
 
