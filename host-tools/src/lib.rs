@@ -13,6 +13,7 @@ pub mod metrics;
 pub mod monitor;
 pub mod plot;
 pub mod recording;
+pub mod replay;
 pub mod sim;
 pub mod trial;
 pub mod validate;

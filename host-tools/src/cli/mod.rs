@@ -7,6 +7,7 @@ mod dataset;
 mod label;
 mod monitor;
 mod progress;
+mod replay;
 mod simulate;
 
 use std::process::ExitCode;
@@ -34,6 +35,8 @@ pub enum Command {
     Baselines(baselines::Args),
     /// Watch the firmware's flag stream (serial port or capture): live view, loss counts, recording.
     Monitor(monitor::Args),
+    /// Run a trial through the firmware's exact path; write the frames it would send and a Fig. 8 plot.
+    Replay(replay::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -43,6 +46,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(a) => simulate::run(a),
         Command::Baselines(a) => baselines::run(a),
         Command::Monitor(a) => monitor::run(a),
+        Command::Replay(a) => replay::run(a),
     }
 }
 
