@@ -8,6 +8,7 @@
 # 3. Compares the two byte for byte; then repeats with a corrupted model blob loaded into the MODEL
 #    region in place of the built-in one (as re-flashing sector 11 would), where both sides must
 #    send fault frames and no flags.
+# 4. Decodes the QEMU frames with the C decoder (host-tools/c).
 # Exit status 0 when both comparisons match, 1 on a mismatch, else the failing command's status.
 # Works from any directory. Env: QEMU_REPLAY_TIMEOUT (seconds, default 300), KEEP_DIR=1 keeps the files.
 set -euo pipefail
@@ -68,3 +69,14 @@ case "$summary" in
 *) echo "qemu-replay: corrupted blob: flag frames sent ($summary)" >&2; exit 1 ;;
 esac
 compare "corrupted model blob" "$work/host-corrupt.bin" "$work/qemu-corrupt.bin"
+
+# 3. The C decoder (host-tools/c/slipguard_protocol.h) on the QEMU build's frames: every run
+#    decodes, and the stream holds the 400 flag frames of the trial.
+cc -std=c99 -Wall -Wextra -Werror -pedantic -I "$root/host-tools/c" "$root/host-tools/c/test_decode.c" -o "$work/test_decode"
+"$work/test_decode" <"$work/qemu.bin" >"$work/qemu-c.txt"
+n_flags="$(grep -c '^flags' "$work/qemu-c.txt" || true)"
+if grep -q '^bad' "$work/qemu-c.txt" || [ "$n_flags" != 400 ]; then
+  echo "qemu-replay: C decoder on the QEMU frames: $n_flags flag frames, $(grep -c '^bad' "$work/qemu-c.txt" || true) bad runs" >&2
+  exit 1
+fi
+echo "qemu-replay: C decoder: $(wc -l <"$work/qemu-c.txt") frames of the QEMU build decoded ($n_flags flag frames)"
