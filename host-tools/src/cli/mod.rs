@@ -3,6 +3,7 @@
 //! an `Args` struct and `run(args) -> anyhow::Result<()>`, and one variant below.
 
 mod baselines;
+mod closed_loop;
 mod dataset;
 mod label;
 mod monitor;
@@ -37,6 +38,8 @@ pub enum Command {
     Monitor(monitor::Args),
     /// Run a trial through the firmware's exact path; write the frames it would send and a Fig. 8 plot.
     Replay(replay::Args),
+    /// Simulated hand lifting objects with a light grip: drop rate with slip prediction off vs on.
+    ClosedLoop(closed_loop::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -47,6 +50,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Baselines(a) => baselines::run(a),
         Command::Monitor(a) => monitor::run(a),
         Command::Replay(a) => replay::run(a),
+        Command::ClosedLoop(a) => closed_loop::run(a),
     }
 }
 
