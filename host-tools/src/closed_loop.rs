@@ -399,7 +399,9 @@ pub fn run_trial(
                             out.flag_frames += 1;
                             if fl.unstable != 0 && fl.status & status::ARMED != 0 {
                                 out.unstable_frames += 1;
+                                // Flags count from grasp start (the fingers' contact) on.
                                 if grip_override.is_none()
+                                    && t >= T_CONTACT_S
                                     && contact.t_loss.is_none()
                                     && cmd < MAX_GRIP_N
                                 {

@@ -342,9 +342,7 @@ impl Monitor {
         let len = rows.keys().next_back().map_or(0, |&k| k as usize + 1);
         let mut samples = vec![vec![-1.0f32; len]; n + 3];
         let mut labels = vec![None; len];
-        for k in 0..len {
-            samples[n + 2][k] = 1.0;
-        }
+        samples[n + 2].fill(1.0);
         for (&k, f) in &rows {
             let k = k as usize;
             for (c, ch) in samples.iter_mut().enumerate().take(n) {

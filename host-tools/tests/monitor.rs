@@ -66,7 +66,7 @@ fn with_flipped_bit(wire: &[u8], byte: usize) -> Vec<u8> {
 fn flag_frame(seq: u16) -> Vec<u8> {
     let mut p = [0u16; 16];
     for (c, v) in p.iter_mut().enumerate() {
-        *v = (seq as u16 * 100 + c as u16 * 7) % 32768;
+        *v = (seq * 100 + c as u16 * 7) % 32768;
     }
     let f = Frame {
         seq,
@@ -74,7 +74,7 @@ fn flag_frame(seq: u16) -> Vec<u8> {
             timestamp_us: (seq as u32 + 1) * 59_880,
             status: status::ARMED,
             channels: 16,
-            unstable: if seq % 5 == 0 { 0b11 } else { 0 },
+            unstable: if seq.is_multiple_of(5) { 0b11 } else { 0 },
             fault: 0,
             overruns: 0,
             skipped: 0,
