@@ -4,10 +4,11 @@
 # 1. Builds firmware/qemu-app (the firmware application with the recorded-trial board layer) and
 #    runs it under QEMU mps2-an386; it writes every frame it sends to qemu-frames.bin (semihosting).
 # 2. Runs the host replay of the same trial and command script through the same portable logic
-#    (`cargo run -p slipguard-app --example replay_cheez`).
+#    (`slipguard replay … --script cheez`, which wraps `slipguard_app::replay::run`).
 # 3. Compares the two byte for byte; then repeats with a corrupted model blob loaded into the MODEL
 #    region in place of the built-in one (as re-flashing sector 11 would), where both sides must
 #    send fault frames and no flags.
+# 4. Decodes the QEMU frames with the C decoder (host-tools/c).
 # Exit status 0 when both comparisons match, 1 on a mismatch, else the failing command's status.
 # Works from any directory. Env: QEMU_REPLAY_TIMEOUT (seconds, default 300), KEEP_DIR=1 keeps the files.
 set -euo pipefail
@@ -19,7 +20,10 @@ if [ "${KEEP_DIR:-0}" != 1 ]; then trap 'rm -rf "$work"' EXIT; else echo "qemu-r
 
 (cd "$root/firmware/qemu-app" && cargo build --release)
 elf="${CARGO_TARGET_DIR:-$root/firmware/qemu-app/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
-(cd "$root" && cargo build -q -p slipguard-app --example replay_cheez)
+(cd "$root" && cargo build -q -p slipguard-host --bin slipguard)
+slipguard="${CARGO_TARGET_DIR:-$root/target}/debug/slipguard"
+trial="$root/firmware/app/fixtures/Cheez_100_814_top_3.csv"
+golden="$root/firmware/core/tests/fixtures/bench/model.bin"
 
 qemu() { # qemu ELF [extra args…]: runs in $work, output file qemu-frames.bin
   local elf="$1"
@@ -43,11 +47,10 @@ compare() { # compare NAME HOST QEMU
 # 1. The built-in model blob.
 qemu "$elf"
 mv "$work/qemu-frames.bin" "$work/qemu.bin"
-(cd "$root" && cargo run -q -p slipguard-app --example replay_cheez >"$work/host.bin")
+"$slipguard" replay "$trial" --model "$golden" --script cheez --out "$work/host.bin"
 compare "golden model" "$work/host.bin" "$work/qemu.bin"
 
 # 2. A corrupted blob (one flipped bit inside a tensor) in the MODEL region.
-golden="$root/firmware/core/tests/fixtures/bench/model.bin"
 python3 - "$golden" "$work/corrupt.bin" <<'PY'
 import sys
 b = bytearray(open(sys.argv[1], 'rb').read())
@@ -57,5 +60,23 @@ PY
 arm-none-eabi-objcopy --remove-section .model "$elf" "$work/no-model.elf" 2>/dev/null
 qemu "$work/no-model.elf" -device "loader,file=$work/corrupt.bin,addr=0x00300000"
 mv "$work/qemu-frames.bin" "$work/qemu-corrupt.bin"
-(cd "$root" && cargo run -q -p slipguard-app --example replay_cheez -- "$work/corrupt.bin" --expect-fault >"$work/host-corrupt.bin")
+"$slipguard" replay "$trial" --model "$work/corrupt.bin" --script cheez --out "$work/host-corrupt.bin"
+# The host side must hold fault frames and not a single flag frame (the monitor counts them).
+summary="$("$slipguard" monitor --capture "$work/host-corrupt.bin" --view none | tail -n 1)"
+case "$summary" in
+*" flags=0 faults=0 "*) echo "qemu-replay: corrupted blob: no fault frame ($summary)" >&2; exit 1 ;;
+*" flags=0 "*) ;;
+*) echo "qemu-replay: corrupted blob: flag frames sent ($summary)" >&2; exit 1 ;;
+esac
 compare "corrupted model blob" "$work/host-corrupt.bin" "$work/qemu-corrupt.bin"
+
+# 3. The C decoder (host-tools/c/slipguard_protocol.h) on the QEMU build's frames: every run
+#    decodes, and the stream holds the 400 flag frames of the trial.
+cc -std=c99 -Wall -Wextra -Werror -pedantic -I "$root/host-tools/c" "$root/host-tools/c/test_decode.c" -o "$work/test_decode"
+"$work/test_decode" <"$work/qemu.bin" >"$work/qemu-c.txt"
+n_flags="$(grep -c '^flags' "$work/qemu-c.txt" || true)"
+if grep -q '^bad' "$work/qemu-c.txt" || [ "$n_flags" != 400 ]; then
+  echo "qemu-replay: C decoder on the QEMU frames: $n_flags flag frames, $(grep -c '^bad' "$work/qemu-c.txt" || true) bad runs" >&2
+  exit 1
+fi
+echo "qemu-replay: C decoder: $(wc -l <"$work/qemu-c.txt") frames of the QEMU build decoded ($n_flags flag frames)"

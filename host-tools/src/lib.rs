@@ -5,13 +5,16 @@
 //! [`error::DataError`]; the `slipguard` binary adds `anyhow` at its edge.
 
 pub mod baselines;
+pub mod closed_loop;
 pub mod dsp;
 pub mod eagle;
 pub mod error;
 pub mod labels;
 pub mod metrics;
+pub mod monitor;
 pub mod plot;
 pub mod recording;
+pub mod replay;
 pub mod sim;
 pub mod trial;
 pub mod validate;

@@ -3,9 +3,12 @@
 //! an `Args` struct and `run(args) -> anyhow::Result<()>`, and one variant below.
 
 mod baselines;
+mod closed_loop;
 mod dataset;
 mod label;
+mod monitor;
 mod progress;
+mod replay;
 mod simulate;
 
 use std::process::ExitCode;
@@ -31,6 +34,12 @@ pub enum Command {
     Simulate(simulate::Args),
     /// The paper's Table I baselines (NB, KNN, SVM), cross-validated by trial.
     Baselines(baselines::Args),
+    /// Watch the firmware's flag stream (serial port or capture): live view, loss counts, recording.
+    Monitor(monitor::Args),
+    /// Run a trial through the firmware's exact path; write the frames it would send and a Fig. 8 plot.
+    Replay(replay::Args),
+    /// Simulated hand lifting objects with a light grip: drop rate with slip prediction off vs on.
+    ClosedLoop(closed_loop::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -39,6 +48,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Label(a) => label::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Baselines(a) => baselines::run(a),
+        Command::Monitor(a) => monitor::run(a),
+        Command::Replay(a) => replay::run(a),
+        Command::ClosedLoop(a) => closed_loop::run(a),
     }
 }
 

@@ -1,0 +1,309 @@
+//! `slipguard closed-loop`: drop rate with prediction off vs on, over seeded trials of the
+//! paper's four situations, per model.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::Parser;
+use plotters::prelude::*;
+use slipguard_app::profile::Profile;
+use slipguard_core::model::Model;
+use slipguard_host::closed_loop::{
+    ControllerConfig, FlagSource, Outcome, Scenario, Situation, min_grip_needed, run_trial,
+    summarise,
+};
+use slipguard_host::replay::{default_models, load_blob};
+
+#[derive(Debug, Parser)]
+pub struct Args {
+    /// Model blob(s) to compare (repeatable). Default: models/hand-force/*.bin, else the golden
+    /// untrained blob.
+    #[arg(long)]
+    pub model: Vec<PathBuf>,
+    /// Trials per situation.
+    #[arg(long, default_value_t = 40)]
+    pub trials: usize,
+    /// Seed of the scenarios.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Grip step per unstable frame, as a fraction of the initial grip.
+    #[arg(long, default_value_t = 0.2)]
+    pub step: f64,
+    /// Also run a perfect predictor (true load ratio ≥ 0.85) with the same latency.
+    #[arg(long)]
+    pub oracle: bool,
+    /// Write closed-loop.md and one PNG per situation here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Threads (default: available cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+struct Source {
+    name: String,
+    blob: Option<slipguard_core::blob::AlignedBlob>,
+    oracle: bool,
+}
+
+fn run_all(
+    scenarios: &[Scenario],
+    src: FlagSource<'_>,
+    ctl: &ControllerConfig,
+    seed: u64,
+    threads: usize,
+) -> Vec<Outcome> {
+    let mut out: Vec<Option<Outcome>> = vec![None; scenarios.len()];
+    std::thread::scope(|s| {
+        let chunk = scenarios.len().div_ceil(threads.max(1)).max(1);
+        for (sc, o) in scenarios.chunks(chunk).zip(out.chunks_mut(chunk)) {
+            s.spawn(move || {
+                for (k, (sc, o)) in sc.iter().zip(o.iter_mut()).enumerate() {
+                    *o = Some(run_trial(sc, src, ctl, None, seed ^ k as u64));
+                }
+            });
+        }
+    });
+    out.into_iter().map(|o| o.expect("ran")).collect()
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let threads = a
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let models = if a.model.is_empty() {
+        default_models(&Profile::HAND)
+    } else {
+        a.model.clone()
+    };
+    let mut sources = vec![Source {
+        name: "off".into(),
+        blob: None,
+        oracle: false,
+    }];
+    let mut rate_mhz = Profile::HAND.default_rate_mhz();
+    for m in &models {
+        let blob = load_blob(m)?;
+        if let Ok(model) = Model::from_bytes(blob.as_bytes()) {
+            rate_mhz = model.config().sample_rate_mhz;
+        }
+        sources.push(Source {
+            name: m.file_name().map_or(m.display().to_string(), |s| {
+                s.to_string_lossy().into_owned()
+            }),
+            blob: Some(blob),
+            oracle: false,
+        });
+    }
+    if a.oracle {
+        sources.push(Source {
+            name: "oracle".into(),
+            blob: None,
+            oracle: true,
+        });
+    }
+    let ctl = ControllerConfig {
+        step_fraction: a.step,
+        rate_mhz,
+    };
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "Closed loop: {} trials per situation, seed {}, grip step {:.0} % of the initial grip, \
+         frame rate {} Hz, latency one frame + 0.61 ms.\n",
+        a.trials,
+        a.seed,
+        100.0 * a.step,
+        rate_mhz as f64 / 1000.0
+    );
+    let _ = writeln!(
+        md,
+        "| situation | prediction | drops | prevented (of drops off) | grip increases / trial | final grip (median, N) | final / minimum needed (median) |"
+    );
+    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|");
+    for sit in Situation::ALL {
+        let scenarios: Vec<Scenario> = (0..a.trials as u64)
+            .map(|i| Scenario::draw(a.seed, i, sit))
+            .collect();
+        let min: Vec<f64> = scenarios.iter().map(|s| min_grip_needed(s, &ctl)).collect();
+        let mut results: Vec<(String, Vec<Outcome>)> = Vec::new();
+        for s in &sources {
+            let src = match (&s.blob, s.oracle) {
+                (Some(b), _) => FlagSource::Model(b.as_bytes()),
+                (None, true) => FlagSource::Oracle,
+                _ => FlagSource::Off,
+            };
+            results.push((
+                s.name.clone(),
+                run_all(&scenarios, src, &ctl, a.seed, threads),
+            ));
+        }
+        let off = results[0].1.clone();
+        for (name, r) in &results {
+            let c = summarise(r, &off, &min);
+            let _ = writeln!(
+                md,
+                "| {} | {} | {}/{} ({:.0} %) | {} | {:.1} | {:.2} | {:.2} |",
+                sit.name(),
+                name,
+                c.drops,
+                c.n,
+                100.0 * c.drops as f64 / c.n.max(1) as f64,
+                if name == "off" {
+                    "—".to_string()
+                } else {
+                    format!("{}/{}", c.prevented, c.drops_off)
+                },
+                c.mean_increases,
+                c.median_final_n,
+                c.median_final_over_min
+            );
+        }
+        let _ = writeln!(
+            md,
+            "| {} | minimum constant grip that holds | | | | {:.2} | 1.00 |",
+            sit.name(),
+            {
+                let mut m = min.clone();
+                m.sort_by(f64::total_cmp);
+                m[m.len() / 2]
+            }
+        );
+        if let Some(dir) = &a.out {
+            std::fs::create_dir_all(dir)?;
+            let png = dir.join(format!("closed-loop-{}.png", sit.name()));
+            plot(&scenarios, &results, &min, sit, &png)?;
+        }
+        eprintln!("closed-loop: {} done", sit.name());
+    }
+    print!("{md}");
+    if let Some(dir) = &a.out {
+        let p = dir.join("closed-loop.md");
+        std::fs::write(&p, &md).with_context(|| format!("writing {}", p.display()))?;
+    }
+    Ok(())
+}
+
+/// Force and grip over time for the first three trials of a situation: one panel per trial,
+/// load (black), grip per prediction source (coloured), minimum grip needed (grey dashed),
+/// grip raises (dots), drops (crosses).
+fn plot(
+    scenarios: &[Scenario],
+    results: &[(String, Vec<Outcome>)],
+    min: &[f64],
+    sit: Situation,
+    path: &Path,
+) -> anyhow::Result<()> {
+    const COLOURS: [RGBColor; 5] = [
+        RGBColor(214, 39, 40),
+        RGBColor(31, 119, 180),
+        RGBColor(44, 160, 44),
+        RGBColor(148, 103, 189),
+        RGBColor(255, 127, 14),
+    ];
+    let rows = scenarios.len().min(3);
+    let root = BitMapBackend::new(path, (1100, 300 * rows.max(1) as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let cells = root.split_evenly((rows.max(1), 1));
+    for (k, area) in cells.iter().enumerate().take(rows) {
+        let ymax = results
+            .iter()
+            .flat_map(|(_, r)| r[k].trace.iter().map(|p| p.grip.max(p.load).max(p.pads)))
+            .fold(min[k], f64::max)
+            * 1.1;
+        let mut chart = ChartBuilder::on(area)
+            .caption(
+                format!(
+                    "{} trial {k}: m {:.2} kg, μ {:.2}, initial grip {:.2} N",
+                    sit.name(),
+                    scenarios[k].mass_kg,
+                    scenarios[k].p.mu_s,
+                    scenarios[k].initial_grip_n
+                ),
+                ("sans-serif", 15),
+            )
+            .margin(8)
+            .x_label_area_size(30)
+            .y_label_area_size(50)
+            .build_cartesian_2d(0f64..slipguard_host::closed_loop::DURATION_S, 0f64..ymax)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .configure_mesh()
+            .x_desc("s")
+            .y_desc("N")
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let e = |e: &dyn std::fmt::Display| anyhow::anyhow!("{e}");
+        let off = &results[0].1[k];
+        chart
+            .draw_series(LineSeries::new(
+                off.trace.iter().map(|p| (p.t, p.load)),
+                BLACK.stroke_width(1),
+            ))
+            .map_err(|x| e(&x))?
+            .label("load (off)")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], BLACK));
+        chart
+            .draw_series(DashedLineSeries::new(
+                [
+                    (0.0, min[k]),
+                    (slipguard_host::closed_loop::DURATION_S, min[k]),
+                ],
+                6,
+                4,
+                RGBColor(128, 128, 128).stroke_width(1),
+            ))
+            .map_err(|x| e(&x))?
+            .label("minimum grip needed")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], RGBColor(128, 128, 128)));
+        for (j, (name, r)) in results.iter().enumerate() {
+            let col = COLOURS[j % COLOURS.len()];
+            let o = &r[k];
+            chart
+                .draw_series(LineSeries::new(
+                    o.trace.iter().map(|p| (p.t, p.grip)),
+                    col.stroke_width(2),
+                ))
+                .map_err(|x| e(&x))?
+                .label(format!(
+                    "grip, {name}{}",
+                    if o.dropped { " (dropped)" } else { "" }
+                ))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
+            chart
+                .draw_series(LineSeries::new(
+                    o.trace.iter().map(|p| (p.t, p.pads)),
+                    col.mix(0.45).stroke_width(1),
+                ))
+                .map_err(|x| e(&x))?;
+            let at = |t: f64| o.trace.iter().find(|p| p.t >= t).map_or(0.0, |p| p.grip);
+            chart
+                .draw_series(
+                    o.raise_times
+                        .iter()
+                        .map(|&t| Circle::new((t, at(t)), 3, col.filled())),
+                )
+                .map_err(|x| e(&x))?;
+            if let Some(t) = o.t_drop {
+                chart
+                    .draw_series(std::iter::once(Cross::new(
+                        (t, 0.03 * ymax),
+                        7,
+                        col.stroke_width(3),
+                    )))
+                    .map_err(|x| e(&x))?;
+            }
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.3))
+            .label_font(("sans-serif", 11))
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()
+            .map_err(|x| e(&x))?;
+    }
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
+}

@@ -1,0 +1,254 @@
+//! `slipguard replay`: a trial through the firmware's exact path; the frames it would send.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use clap::{Parser, ValueEnum};
+use slipguard_app::profile::Profile;
+use slipguard_app::replay::OpenWire;
+use slipguard_core::protocol::{Command, Message};
+use slipguard_host::eagle::read_tactile_csv;
+use slipguard_host::labels::{LabelConfig, annotate};
+use slipguard_host::replay::{self, Scheduled};
+use slipguard_host::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ProfileArg {
+    /// From the trial: counts with ≤ 4 channels → suction, else hand.
+    Auto,
+    /// 16 fingertip force channels (mN).
+    Hand,
+    /// 4 suction-cup pressure channels (counts).
+    Suction,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Script {
+    /// No commands: the firmware boots armed and flags from the first frame.
+    None,
+    /// Grasp start / release at `--grasp-at` / `--release-at` (default: the trial's grasp mark).
+    Marks,
+    /// The QEMU comparison's scenario for Cheez_100_814_top_3 (ping, info, line noise, bad CRC,
+    /// unknown type, threshold 0.6, grasp start at 52, release at 300, channel 14 open 150–169).
+    Cheez,
+}
+
+#[derive(Debug, Parser)]
+pub struct Args {
+    /// The trial: a recording (.csv, docs/data-format.md), an eagle-shoal trial folder, or a plain
+    /// `tactile.csv` (header c0…c15, one row per step; marks from a sibling `<name>.meta.json`).
+    pub trial: PathBuf,
+    /// Model blob (default: models/hand-force/*.bin or models/suction/*.bin, first in name
+    /// order, else the golden untrained blob).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Sensor profile.
+    #[arg(long, value_enum, default_value_t = ProfileArg::Auto)]
+    pub profile: ProfileArg,
+    /// Rate of a plain tactile.csv, Hz.
+    #[arg(long, default_value_t = 16.7)]
+    pub rate: f32,
+    /// Commands sent to the firmware during the replay.
+    #[arg(long, value_enum, default_value_t = Script::None)]
+    pub script: Script,
+    /// With `--script marks`: grasp start before this frame.
+    #[arg(long)]
+    pub grasp_at: Option<u32>,
+    /// With `--script marks`: release before this frame.
+    #[arg(long)]
+    pub release_at: Option<u32>,
+    /// Disconnect a channel: CHANNEL:FROM:TO (trial steps, TO exclusive); repeatable.
+    #[arg(long, value_parser = parse_open_wire)]
+    pub open_wire: Vec<OpenWire>,
+    /// Write the frames to this file (`-` = stdout).
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+    /// Send the frames to a serial port, paced at the frame rate (the firmware's timing).
+    #[arg(long)]
+    pub port: Option<String>,
+    /// Baud rate of `--port`.
+    #[arg(long, default_value_t = 921_600)]
+    pub baud: u32,
+    /// A Fig. 8-style plot (PNG).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Plot one channel's prediction instead of "any channel".
+    #[arg(long)]
+    pub plot_channel: Option<usize>,
+    /// Allow a model whose rate differs from the trial's.
+    #[arg(long)]
+    pub any_rate: bool,
+}
+
+fn parse_open_wire(s: &str) -> Result<OpenWire, String> {
+    let v: Vec<usize> = s
+        .split(':')
+        .map(|x| x.parse::<usize>().map_err(|e| format!("`{x}`: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [channel, from_step, to_step] if from_step <= to_step => Ok(OpenWire {
+            channel,
+            from_step,
+            to_step,
+        }),
+        _ => Err("expected CHANNEL:FROM:TO with FROM <= TO".into()),
+    }
+}
+
+#[derive(serde::Deserialize)]
+struct Meta {
+    label: Vec<i64>,
+}
+
+/// Loads any of the accepted trial forms.
+pub fn load_trial(path: &Path, rate: f32) -> anyhow::Result<Trial> {
+    let cfg = LabelConfig::default();
+    if path.is_dir() || slipguard_host::recording::is_recording(path) {
+        let mut v = slipguard_host::load_path(path, &cfg, |_, _| {})?;
+        if v.len() != 1 {
+            bail!("{} holds {} trials; give one", path.display(), v.len());
+        }
+        return Ok(v.remove(0));
+    }
+    let (names, samples) = read_tactile_csv(path)?;
+    let id = path
+        .file_stem()
+        .map_or("trial".into(), |s| s.to_string_lossy().into_owned());
+    let mut t = Trial::new(id, Unit::MilliNewton, rate, samples);
+    t.sensor = SensorKind::Force;
+    t.channel_names = names;
+    t.source = path.display().to_string();
+    let meta = path.with_extension("meta.json");
+    if let Ok(text) = std::fs::read_to_string(&meta) {
+        let m: Meta =
+            serde_json::from_str(&text).with_context(|| format!("reading {}", meta.display()))?;
+        if let [l0, l1, l2, l3] = m.label[..] {
+            t.marks = PhaseMarks {
+                grasp_start: Some(l0 as usize),
+                lift_start: Some(l1 as usize),
+                open_start: Some(l2 as usize),
+            };
+            t.outcome = if l3 == 1 {
+                Outcome::Success
+            } else {
+                Outcome::Failure
+            };
+        }
+    }
+    t.validate().map_err(anyhow::Error::msg)?;
+    let cfg = cfg.scaled_to(t.rate_hz);
+    annotate(&mut t, &cfg);
+    Ok(t)
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let trial = load_trial(&a.trial, a.rate)?;
+    let profile = match a.profile {
+        ProfileArg::Auto => replay::profile_for(&trial),
+        ProfileArg::Hand => Profile::HAND,
+        ProfileArg::Suction => Profile::SUCTION,
+    };
+    let model = a
+        .model
+        .clone()
+        .unwrap_or_else(|| replay::default_models(&profile).remove(0));
+    let blob = replay::load_blob(&model)?;
+    let rate_mhz = match replay::check_rate(&trial, blob.as_bytes()) {
+        Ok(r) => r.unwrap_or(profile.default_rate_mhz()),
+        Err(e) if a.any_rate => {
+            eprintln!("replay: warning: {e}");
+            (trial.rate_hz * 1000.0).round() as u32
+        }
+        Err(e) => bail!("{e} (use --any-rate to replay anyway)"),
+    };
+    let (script, mut wires) = match a.script {
+        Script::None => (Vec::new(), Vec::new()),
+        Script::Cheez => replay::cheez_script(),
+        Script::Marks => {
+            let mut cmds = Vec::new();
+            if let Some(g) = a.grasp_at.or(trial.marks.grasp_start.map(|g| g as u32)) {
+                cmds.push(Scheduled {
+                    before_frame: g,
+                    command: Command::GraspStart,
+                });
+            }
+            if let Some(r) = a.release_at {
+                cmds.push(Scheduled {
+                    before_frame: r,
+                    command: Command::Release,
+                });
+            }
+            cmds.sort_by_key(|c| c.before_frame);
+            (replay::encode_script(&cmds), Vec::new())
+        }
+    };
+    wires.extend(a.open_wire.iter().copied());
+    let out = replay::replay(profile, blob.as_bytes(), &trial, &script, &wires);
+    let frames = replay::decode_stream(&out.wire);
+    let n_flags = frames
+        .iter()
+        .filter(|f| matches!(f.msg, Message::Flags(_)))
+        .count();
+    let n_faults = frames
+        .iter()
+        .filter(|f| matches!(f.msg, Message::Fault(_)))
+        .count();
+    eprintln!(
+        "replay: {} ({} steps, {} Hz) with {}: {} frames ({} flags, {} faults), {} bytes",
+        trial.id,
+        trial.n_steps(),
+        trial.rate_hz,
+        model.display(),
+        out.frames,
+        n_flags,
+        n_faults,
+        out.wire.len()
+    );
+    match a.out.as_deref() {
+        Some(p) if p == Path::new("-") => std::io::stdout().write_all(&out.wire)?,
+        Some(p) => {
+            std::fs::write(p, &out.wire).with_context(|| format!("writing {}", p.display()))?
+        }
+        None => {}
+    }
+    if let Some(png) = &a.png {
+        let flags = replay::flags_by_frame(&frames, rate_mhz, trial.n_steps());
+        let title = format!(
+            "{} ({}), model {}",
+            trial.id,
+            trial.outcome,
+            model.file_name().unwrap_or_default().to_string_lossy()
+        );
+        replay::plot_fig8(&trial, &flags, a.plot_channel, &title, png)?;
+        eprintln!("replay: plot {}", png.display());
+    }
+    if let Some(name) = &a.port {
+        let mut port = serialport::new(name, a.baud)
+            .timeout(Duration::from_millis(500))
+            .open()
+            .with_context(|| format!("opening {name}"))?;
+        // Pace: each frame leaves when its last sample's time has passed (its timestamp),
+        // replies right after the frame they follow.
+        let start = Instant::now();
+        let mut d = slipguard_core::protocol::Deframer::new();
+        let mut chunk = Vec::new();
+        for &b in &out.wire {
+            chunk.push(b);
+            if let Some(Ok(f)) = d.push_decode(b) {
+                if let Message::Flags(fl) = f.msg {
+                    let due = Duration::from_micros(fl.timestamp_us as u64);
+                    if let Some(wait) = due.checked_sub(start.elapsed()) {
+                        std::thread::sleep(wait);
+                    }
+                }
+                port.write_all(&chunk)?;
+                chunk.clear();
+            }
+        }
+        port.write_all(&chunk)?;
+        port.flush()?;
+    }
+    Ok(())
+}

@@ -1,0 +1,601 @@
+//! Closed-loop grasp simulation: a hand lifts an object with a deliberately light grip, the
+//! firmware (the real front end and app of `slipguard-app`, bit-exact model included) watches
+//! the fingertip forces, and a grip controller raises the grip by a fixed step every time a
+//! flag frame says "unstable", with the firmware's real latency. The paper's DoraHand tests
+//! (section III.C): heavy object, sudden added weight, gradually added weight, in-hand rotation.
+//!
+//! Physics: the friction model of the force simulator (`sim::force`, docs/simulator.md) with the
+//! same constants (`RHO_STICK_SLIP`, `EROSION_ONSET`, `KINETIC_RATIO`, `AREA_LOSS`,
+//! `LOSS_TAU_S`, 1 kHz) and the same drawn object/hand parameters (`ForceParams::draw`: contact
+//! pads, shares, gains, μ_s, lift pulse via `ForceParams::accel`, stick-slip, creep, erosion,
+//! contact length, wedging). What differs is that the grip is an input (the controller's) and
+//! the load follows the situation; the equations are restated here step by step because
+//! `sim::force::integrate` runs a fixed grip schedule. docs/integration.md ("closed loop")
+//! documents the situations, the controller and the results.
+
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+
+use slipguard_app::MAX_CHANNELS;
+use slipguard_app::app::App;
+use slipguard_app::decimate::RATIO;
+use slipguard_app::frontend::Frontend;
+use slipguard_app::profile::Profile;
+use slipguard_core::protocol::{self, Command, Deframer, Frame, MAX_WIRE, Message, status};
+
+use crate::sim::force::{
+    AREA_LOSS, EROSION_ONSET, ForceParams, ForceSimConfig, INTERNAL_HZ, Intent, KINETIC_RATIO,
+    LOSS_TAU_S, RHO_STICK_SLIP,
+};
+use crate::sim::{normal, trial_rng, uniform};
+
+const G: f64 = 9.81;
+
+/// Trial length (s).
+pub const DURATION_S: f64 = 8.0;
+/// Fingers touch the object.
+pub const T_CONTACT_S: f64 = 0.3;
+/// Lift starts.
+pub const T_LIFT_S: f64 = 1.5;
+/// Grip actuator time constant (s): the grip force follows the commanded one to first order.
+pub const ACTUATOR_TAU_S: f64 = 0.08;
+/// Strongest grip the hand can apply (N).
+pub const MAX_GRIP_N: f64 = 40.0;
+/// UART speed (docs/protocol.md), for the transmission time of a frame.
+pub const BAUD: f64 = 921_600.0;
+
+/// The paper's four test situations.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Situation {
+    /// Grasp a heavy item with an initial light force.
+    Heavy,
+    /// A light item suddenly gains weight.
+    SuddenWeight,
+    /// Weight is added gradually.
+    GradualWeight,
+    /// The item is rotated inside the hand.
+    Rotation,
+}
+
+impl Situation {
+    /// All four, in the paper's order.
+    pub const ALL: [Situation; 4] = [
+        Situation::Heavy,
+        Situation::SuddenWeight,
+        Situation::GradualWeight,
+        Situation::Rotation,
+    ];
+
+    /// Short name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Situation::Heavy => "heavy",
+            Situation::SuddenWeight => "sudden-weight",
+            Situation::GradualWeight => "gradual-weight",
+            Situation::Rotation => "rotation",
+        }
+    }
+}
+
+/// One drawn trial: object, hand and situation parameters.
+#[derive(Clone, Debug)]
+pub struct Scenario {
+    /// Situation.
+    pub situation: Situation,
+    /// Object and hand parameters from the force simulator (its timing fields are overwritten:
+    /// contact at [`T_CONTACT_S`], lift at [`T_LIFT_S`]).
+    pub p: ForceParams,
+    /// Mass the grip was set for (kg).
+    pub nominal_mass_kg: f64,
+    /// Initial (light) grip (N): `nominal mass · g / (μ_s · ρ0)`, ρ0 U(0.35, 0.45).
+    pub initial_grip_n: f64,
+    /// Mass of the object at the start (kg).
+    pub mass_kg: f64,
+    /// Added mass (kg) and when (s) / over how long (s; 0 = at once).
+    pub added: Option<(f64, f64, f64)>,
+    /// In-hand rotation: start (s), duration (s), extra tangential load as a fraction of m·g
+    /// and loss of friction capacity (fraction) at mid-rotation, both rising and falling as
+    /// sin(π τ / duration).
+    pub rotation: Option<(f64, f64, f64, f64)>,
+}
+
+impl Scenario {
+    /// Draws trial `index` of `seed` for `situation`.
+    pub fn draw(seed: u64, index: u64, situation: Situation) -> Self {
+        let mut rng = trial_rng(seed, 0x5EED_0000 + 10_000 * situation as u64 + index);
+        let cfg = ForceSimConfig::default();
+        let mut p = ForceParams::draw(&mut rng, Intent::Hold, &cfg);
+        p.t_grasp = 0.0;
+        p.t_contact = T_CONTACT_S;
+        p.t_lift = T_LIFT_S;
+        p.t_open_mark = DURATION_S;
+        p.t_release = DURATION_S + 1.0;
+        p.redistribution = None;
+        p.squeeze = None;
+        let a_peak = p.lift_accel;
+        let rho0 = uniform(&mut rng, 0.35, 0.45);
+        if situation == Situation::Rotation {
+            // "Grasping something with low friction".
+            p.mu_s = uniform(&mut rng, 0.3, 0.5);
+        }
+        let nominal = p.mass_kg;
+        let grip = nominal * G / (p.mu_s * rho0);
+        // Mass giving load ratio `rho` at the initial grip under acceleration `a`.
+        let mass_for = |rho: f64, a: f64| rho * p.mu_s * grip / (G + a);
+        let (mut mass, mut added, mut rotation) = (nominal, None, None);
+        match situation {
+            Situation::Heavy => mass = mass_for(uniform(&mut rng, 0.86, 0.97), a_peak),
+            Situation::SuddenWeight => {
+                let m1 = mass_for(uniform(&mut rng, 0.84, 0.94), 0.0);
+                added = Some((m1 - nominal, uniform(&mut rng, 3.5, 4.5), 0.0));
+            }
+            Situation::GradualWeight => {
+                let m1 = mass_for(uniform(&mut rng, 1.0, 1.2), 0.0);
+                added = Some((
+                    m1 - nominal,
+                    uniform(&mut rng, 3.2, 3.8),
+                    uniform(&mut rng, 2.5, 3.5),
+                ));
+            }
+            Situation::Rotation => {
+                // Load ratio at mid-rotation U(0.92, 1.05) at the initial grip.
+                let (t0, dur) = (uniform(&mut rng, 3.5, 4.5), uniform(&mut rng, 1.5, 2.5));
+                let loss = uniform(&mut rng, 0.3, 0.45);
+                let peak = uniform(&mut rng, 0.92, 1.05);
+                let extra = (peak * (1.0 - loss) / rho0 - 1.0).max(0.0);
+                rotation = Some((t0, dur, extra, loss));
+            }
+        }
+        p.mass_kg = mass;
+        Scenario {
+            situation,
+            p,
+            nominal_mass_kg: nominal,
+            initial_grip_n: grip,
+            mass_kg: mass,
+            added,
+            rotation,
+        }
+    }
+
+    /// Mass at `t` (kg).
+    pub fn mass(&self, t: f64) -> f64 {
+        match self.added {
+            Some((dm, t0, dur)) if t >= t0 => {
+                let x = if dur > 0.0 {
+                    ((t - t0) / dur).min(1.0)
+                } else {
+                    1.0
+                };
+                self.mass_kg + dm * x
+            }
+            _ => self.mass_kg,
+        }
+    }
+
+    /// Tangential load (N) at `t`: weight and lift acceleration (the force simulator's pulse and
+    /// table take-over), an impact when weight drops in at once, the rotation's extra load.
+    pub fn load(&self, t: f64) -> f64 {
+        if t < self.p.t_lift {
+            return 0.0;
+        }
+        let x = ((t - self.p.t_lift) / 0.3).clamp(0.0, 1.0);
+        let take_over = x * x * (3.0 - 2.0 * x);
+        let mut l = self.mass(t) * (G + self.p.accel(t)) * take_over;
+        if let Some((dm, t0, 0.0)) = self.added
+            && t >= t0
+        {
+            // The added weight lands: 10 % overshoot decaying in 30 ms.
+            l += dm * G * 0.1 * (-(t - t0) / 0.03).exp();
+        }
+        if let Some((t0, dur, extra, _)) = self.rotation
+            && (t0..t0 + dur).contains(&t)
+        {
+            let s = (std::f64::consts::PI * (t - t0) / dur).sin();
+            l += extra * self.mass_kg * G * s;
+        }
+        l
+    }
+
+    /// Friction factor of the rotation (rolling contact, finger gaiting) at `t`.
+    pub fn mu_factor(&self, t: f64) -> f64 {
+        match self.rotation {
+            Some((t0, dur, _, loss)) if (t0..t0 + dur).contains(&t) => {
+                1.0 - loss * (std::f64::consts::PI * (t - t0) / dur).sin().powi(2)
+            }
+            _ => 1.0,
+        }
+    }
+}
+
+/// The friction state of the held object, advanced one 1 kHz tick at a time with the force
+/// simulator's equations.
+#[derive(Clone, Debug, Default)]
+pub struct Contact {
+    s_mm: f64,
+    v_mm_s: f64,
+    phase: f64,
+    gross: bool,
+    erosion: f64,
+    /// Time the object was lost.
+    pub t_loss: Option<f64>,
+    n_at_loss: f64,
+    /// Load ratio of the last tick.
+    pub rho: f64,
+    /// Time incipient slip (ρ ≥ 0.85) was first reached.
+    pub t_slip: Option<f64>,
+}
+
+impl Contact {
+    /// One tick at time `t` with grip `grip` (N); returns (normal force the pads read (N),
+    /// tangential load carried (N)).
+    pub fn tick(&mut self, sc: &Scenario, t: f64, grip: f64) -> (f64, f64) {
+        let p = &sc.p;
+        let dt = 1.0 / INTERNAL_HZ;
+        let load = sc.load(t);
+        if let Some(tl) = self.t_loss {
+            return (self.n_at_loss * (-(t - tl) / LOSS_TAU_S).exp(), 0.0);
+        }
+        let frac = (self.s_mm / p.contact_len_mm).min(1.0);
+        let mu_eff = p.mu_s * (1.0 - AREA_LOSS * frac) * (1.0 - self.erosion) * sc.mu_factor(t);
+        let cap = mu_eff * grip;
+        let rho = if cap > 0.0 { load / cap } else { 0.0 };
+        self.rho = rho;
+        let mut factor = 1.0;
+        if load > 0.0 {
+            self.erosion =
+                (self.erosion + p.erosion_rate * (rho - EROSION_ONSET).max(0.0) * dt).min(0.5);
+            if rho >= RHO_STICK_SLIP {
+                self.t_slip.get_or_insert(t);
+            }
+        }
+        if !self.gross && load > 0.0 && rho >= 1.0 {
+            self.gross = true;
+        }
+        if self.gross {
+            let kin = KINETIC_RATIO * mu_eff * grip;
+            let acc = (load - kin) / sc.mass(t) * 1000.0;
+            self.v_mm_s = (self.v_mm_s + acc * dt).max(0.0);
+            if self.v_mm_s == 0.0 && acc <= 0.0 {
+                self.gross = false;
+            }
+            self.s_mm += self.v_mm_s * dt;
+            factor = (1.0 - 0.5 * frac) * (1.0 + p.wedge * (std::f64::consts::PI * frac).sin());
+        } else if load > 0.0 && rho >= RHO_STICK_SLIP {
+            let x = ((rho - RHO_STICK_SLIP) / (1.0 - RHO_STICK_SLIP)).clamp(0.0, 1.0);
+            self.phase += p.stick_slip_hz * dt;
+            let cyc = 0.5 * (1.0 - (2.0 * std::f64::consts::PI * self.phase).cos());
+            self.s_mm += p.creep_mm_s * x * 2.0 * cyc * dt;
+            factor = 1.0 - p.vib_amp * x * cyc;
+        }
+        if self.s_mm >= p.contact_len_mm {
+            self.t_loss = Some(t);
+            self.n_at_loss = grip * factor;
+        }
+        (grip * factor, load)
+    }
+}
+
+/// Where the controller's "unstable" information comes from.
+#[derive(Clone, Copy, Debug)]
+pub enum FlagSource<'a> {
+    /// No prediction: the grip stays at its initial value.
+    Off,
+    /// The firmware with this model blob.
+    Model(&'a [u8]),
+    /// A perfect predictor with the firmware's latency: "unstable" when the true load ratio at
+    /// the frame's last sample was at or above the stick-slip onset (reference only).
+    Oracle,
+}
+
+/// Settings of the controller.
+#[derive(Clone, Copy, Debug)]
+pub struct ControllerConfig {
+    /// Grip increase per unstable frame, as a fraction of the initial grip (the paper raised
+    /// the joint currents by 5 and 10 mA from 25 and 50 mA: 20 %).
+    pub step_fraction: f64,
+    /// Frame rate (mHz): the model's.
+    pub rate_mhz: u32,
+}
+
+/// One sample of the trace (every 10 ms).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TracePoint {
+    /// Time (s).
+    pub t: f64,
+    /// Grip force (N).
+    pub grip: f64,
+    /// Tangential load (N).
+    pub load: f64,
+    /// Sum of the pad readings (N).
+    pub pads: f64,
+    /// Load ratio.
+    pub rho: f64,
+}
+
+/// Outcome of one closed-loop trial.
+#[derive(Clone, Debug, Default)]
+pub struct Outcome {
+    /// Object lost.
+    pub dropped: bool,
+    /// Time of the loss (s).
+    pub t_drop: Option<f64>,
+    /// Grip increases commanded.
+    pub increases: u32,
+    /// Commanded grip at the end (or at the drop), N.
+    pub final_grip_n: f64,
+    /// Initial grip, N.
+    pub initial_grip_n: f64,
+    /// Flag frames received with any channel unstable.
+    pub unstable_frames: u32,
+    /// Flag frames received.
+    pub flag_frames: u32,
+    /// Fault frames received.
+    pub fault_frames: u32,
+    /// Times at which the grip was raised (s).
+    pub raise_times: Vec<f64>,
+    /// Trace every 10 ms.
+    pub trace: Vec<TracePoint>,
+}
+
+/// Force a pad reads (mN) → ADC code of the hand profile with the force simulator's noise
+/// (10 mN + 1 %) and ±1 LSB.
+fn code(profile: &Profile, mn: f64, rng: &mut ChaCha8Rng) -> u16 {
+    let noisy = if mn > 1.0 {
+        mn + normal(rng) * (10.0 + 0.01 * mn)
+    } else {
+        0.0
+    };
+    let c = profile.to_counts(noisy.max(0.0).round() as i32) as i32 + rng.random_range(-1..=1);
+    c.clamp(0, profile.adc_max as i32) as u16
+}
+
+/// Runs one trial: `grip_override` replaces the controller by a constant commanded grip (used
+/// to find the minimum grip needed).
+pub fn run_trial(
+    sc: &Scenario,
+    source: FlagSource<'_>,
+    ctl: &ControllerConfig,
+    grip_override: Option<f64>,
+    seed: u64,
+) -> Outcome {
+    let profile = Profile::HAND;
+    let dt = 1.0 / INTERNAL_HZ;
+    let ticks = (DURATION_S * INTERNAL_HZ).round() as usize;
+    let period_s = 1000.0 / ctl.rate_mhz as f64;
+    let scan_dt = period_s / RATIO as f64;
+    let mut rng = trial_rng(seed, 0xC0FF_EE00);
+    let mut app = match source {
+        FlagSource::Model(blob) => Some(App::new(profile, blob)),
+        _ => None,
+    };
+    let mut frontend = Frontend::new(profile);
+    let mut device_rx = Deframer::new();
+    let mut ctl_rx = Deframer::new();
+    let mut buf = [0u8; MAX_WIRE];
+    // Frames in flight: (delivery time, wire bytes).
+    let mut in_flight: std::collections::VecDeque<(f64, Vec<u8>)> = Default::default();
+    let mut out = Outcome {
+        initial_grip_n: sc.initial_grip_n,
+        ..Default::default()
+    };
+    let mut contact = Contact::default();
+    let mut cmd = grip_override.unwrap_or(sc.initial_grip_n);
+    let mut grip = 0.0f64;
+    let mut lag = [0.0f64; MAX_CHANNELS];
+    let alpha = dt / (0.02 + dt);
+    let mut next_scan = 0.0f64;
+    let mut grasp_sent = false;
+    let step = ctl.step_fraction * sc.initial_grip_n;
+    for i in 0..ticks {
+        let t = i as f64 * dt;
+        // Controller: frames that have arrived.
+        while in_flight.front().is_some_and(|(due, _)| *due <= t) {
+            let (_, bytes) = in_flight.pop_front().expect("front");
+            for b in bytes {
+                if let Some(Ok(f)) = ctl_rx.push_decode(b) {
+                    match f.msg {
+                        Message::Flags(fl) => {
+                            out.flag_frames += 1;
+                            if fl.unstable != 0 && fl.status & status::ARMED != 0 {
+                                out.unstable_frames += 1;
+                                // Flags count from grasp start (the fingers' contact) on.
+                                if grip_override.is_none()
+                                    && t >= T_CONTACT_S
+                                    && contact.t_loss.is_none()
+                                    && cmd < MAX_GRIP_N
+                                {
+                                    cmd = (cmd + step).min(MAX_GRIP_N);
+                                    out.increases += 1;
+                                    out.raise_times.push(t);
+                                }
+                            }
+                        }
+                        Message::Fault(_) => out.fault_frames += 1,
+                        _ => {}
+                    }
+                }
+            }
+        }
+        // Grip actuator.
+        if t >= T_CONTACT_S {
+            grip += (dt / (ACTUATOR_TAU_S + dt)) * (cmd - grip);
+        }
+        let (normal_n, load) = contact.tick(sc, t, grip);
+        // Pads (the force simulator's sensor: shares, gains, shear cross-talk, 20 ms lag).
+        let shear = load * sc.p.shear_coupling;
+        for (k, &ch) in sc.p.contacts.iter().enumerate() {
+            let f = sc.p.shares[k] * (normal_n + shear) * 1000.0 * sc.p.gains[ch];
+            lag[ch] += alpha * (f - lag[ch]);
+        }
+        if i % 10 == 0 {
+            out.trace.push(TracePoint {
+                t,
+                grip,
+                load,
+                pads: lag.iter().sum::<f64>() / 1000.0,
+                rho: if contact.t_loss.is_some() {
+                    0.0
+                } else {
+                    contact.rho
+                },
+            });
+        }
+        // ADC scans due by now; a frame every RATIO scans.
+        while next_scan <= t {
+            next_scan += scan_dt;
+            let mut scan = [0u16; MAX_CHANNELS];
+            for (c, s) in scan.iter_mut().enumerate().take(profile.channels) {
+                *s = code(&profile, lag[c], &mut rng);
+            }
+            let Some(input) = frontend.push_scan(&scan) else {
+                continue;
+            };
+            let deliver = t + period_s + 56.0 * 10.0 / BAUD;
+            match source {
+                FlagSource::Off => {}
+                FlagSource::Oracle => {
+                    let unstable = contact.t_loss.is_none() && contact.rho >= RHO_STICK_SLIP;
+                    let f = Frame {
+                        seq: input.index as u16,
+                        msg: Message::Flags(protocol::Flags {
+                            timestamp_us: 0,
+                            status: status::ARMED,
+                            channels: 16,
+                            unstable: if unstable { 1 } else { 0 },
+                            fault: 0,
+                            overruns: 0,
+                            skipped: 0,
+                            p: [0; 16],
+                        }),
+                    };
+                    let n = protocol::encode(&f, &mut buf);
+                    in_flight.push_back((deliver, buf[..n].to_vec()));
+                }
+                FlagSource::Model(_) => {
+                    let app = app.as_mut().expect("app");
+                    let mut bytes = Vec::new();
+                    if !grasp_sent && t >= T_CONTACT_S {
+                        // The controller sends grasp start when its fingers touch.
+                        grasp_sent = true;
+                        let n = protocol::encode(
+                            &Frame {
+                                seq: 1,
+                                msg: Message::Command(Command::GraspStart),
+                            },
+                            &mut buf,
+                        );
+                        let cmd_bytes = buf[..n].to_vec();
+                        slipguard_app::replay::receive(app, &mut device_rx, &cmd_bytes, |f| {
+                            let n = protocol::encode(f, &mut buf);
+                            bytes.extend_from_slice(&buf[..n]);
+                        });
+                    }
+                    if let Some(f) = app.frame(&input, false) {
+                        let n = protocol::encode(&f, &mut buf);
+                        bytes.extend_from_slice(&buf[..n]);
+                    }
+                    in_flight.push_back((deliver, bytes));
+                }
+            }
+        }
+        if contact.t_loss.is_some() && out.t_drop.is_none() {
+            out.t_drop = contact.t_loss;
+            out.dropped = true;
+        }
+    }
+    out.final_grip_n = cmd;
+    out
+}
+
+/// Smallest constant grip (N, within 1 %) with which the object is not dropped in this
+/// scenario (no controller), by bisection; [`MAX_GRIP_N`] if even that drops.
+pub fn min_grip_needed(sc: &Scenario, ctl: &ControllerConfig) -> f64 {
+    let holds = |g: f64| {
+        let mut c = Contact::default();
+        let dt = 1.0 / INTERNAL_HZ;
+        let mut grip = 0.0;
+        for i in 0..(DURATION_S * INTERNAL_HZ).round() as usize {
+            let t = i as f64 * dt;
+            if t >= T_CONTACT_S {
+                grip += (dt / (ACTUATOR_TAU_S + dt)) * (g - grip);
+            }
+            c.tick(sc, t, grip);
+            if c.t_loss.is_some() {
+                return false;
+            }
+        }
+        true
+    };
+    let _ = ctl;
+    let (mut lo, mut hi) = (0.0, MAX_GRIP_N);
+    if !holds(hi) {
+        return MAX_GRIP_N;
+    }
+    while hi - lo > 0.01 * hi {
+        let mid = 0.5 * (lo + hi);
+        if holds(mid) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    hi
+}
+
+/// Aggregates of one (situation, source) cell.
+#[derive(Clone, Debug, Default)]
+pub struct Cell {
+    /// Trials.
+    pub n: usize,
+    /// Drops.
+    pub drops: usize,
+    /// Mean grip increases per trial.
+    pub mean_increases: f64,
+    /// Median final commanded grip (N).
+    pub median_final_n: f64,
+    /// Median of final grip / minimum grip needed.
+    pub median_final_over_min: f64,
+    /// Drops among the trials that dropped without prediction, prevented here.
+    pub prevented: usize,
+    /// Trials that dropped without prediction.
+    pub drops_off: usize,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Summarises outcomes against the prediction-off outcomes of the same scenarios.
+pub fn summarise(on: &[Outcome], off: &[Outcome], min_grip: &[f64]) -> Cell {
+    let n = on.len();
+    let drops_off = off.iter().filter(|o| o.dropped).count();
+    let prevented = on
+        .iter()
+        .zip(off)
+        .filter(|(a, b)| b.dropped && !a.dropped)
+        .count();
+    Cell {
+        n,
+        drops: on.iter().filter(|o| o.dropped).count(),
+        mean_increases: on.iter().map(|o| o.increases as f64).sum::<f64>() / n.max(1) as f64,
+        median_final_n: median(on.iter().map(|o| o.final_grip_n).collect()),
+        median_final_over_min: median(
+            on.iter()
+                .zip(min_grip)
+                .map(|(o, &m)| o.final_grip_n / m)
+                .collect(),
+        ),
+        prevented,
+        drops_off,
+    }
+}

@@ -1,0 +1,340 @@
+//! Host replay of a trial through the firmware: a thin wrapper around
+//! [`slipguard_app::replay::run`], the same function the QEMU build is compared with byte for
+//! byte (`scripts/qemu-replay.sh`). This module only converts a [`Trial`] to the firmware's
+//! model-rate input, builds the command script, decodes the frames for the Fig. 8-style plot and
+//! picks the default model blob.
+
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+use slipguard_app::profile::Profile;
+use slipguard_app::replay::{self as fw, OpenWire, ScriptItem};
+use slipguard_core::blob::AlignedBlob;
+use slipguard_core::model::Model;
+use slipguard_core::protocol::{self, Command, Deframer, Flags, Frame, MAX_WIRE, Message, P_NONE};
+
+use crate::error::{DataError, Result};
+use crate::labels::{LabelConfig, label_annotated};
+use crate::trial::{Trial, Unit};
+
+/// The golden variant (c) blob (random PyTorch-init weights) shipped with the core's tests.
+pub fn golden_model_path() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/core/tests/fixtures/bench/model.bin")
+}
+
+/// The default model blobs for a profile: every `models/<dir>/*.bin` of the repository
+/// (`hand-force` for the hand, `suction` for suction), sorted, else the golden blob.
+pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
+    let dir = if profile.channels == Profile::SUCTION.channels && profile.tare {
+        "suction"
+    } else {
+        "hand-force"
+    };
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../models")
+        .join(dir);
+    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .map(|rd| {
+            rd.filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|e| e == "bin"))
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    if v.is_empty() {
+        v.push(golden_model_path());
+    }
+    v
+}
+
+/// Reads a model blob into 4-byte aligned memory (as flash is).
+pub fn load_blob(path: &Path) -> Result<AlignedBlob> {
+    let b = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
+    Ok(AlignedBlob::new(&b))
+}
+
+/// The profile a trial's unit and channel count imply.
+pub fn profile_for(trial: &Trial) -> Profile {
+    match trial.unit {
+        Unit::Counts if trial.n_channels() <= Profile::SUCTION.channels => Profile::SUCTION,
+        _ => Profile::HAND,
+    }
+}
+
+/// The trial as the firmware replay's input: `steps × channels` little-endian `i32` (values
+/// rounded to whole units), channels padded with zeros or cut to the profile's.
+pub fn trial_bytes(trial: &Trial, profile: &Profile) -> Vec<u8> {
+    let n = profile.channels;
+    let mut out = Vec::with_capacity(trial.n_steps() * n * 4);
+    for t in 0..trial.n_steps() {
+        for c in 0..n {
+            let v = trial.samples.get(c).map_or(0.0, |s| s[t]);
+            out.extend_from_slice(&(v.round() as i32).to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Checks that a blob's frame rate is the trial's (within 1 %); returns the model rate in mHz.
+pub fn check_rate(trial: &Trial, blob: &[u8]) -> std::result::Result<Option<u32>, String> {
+    let Ok(m) = Model::from_bytes(blob) else {
+        return Ok(None); // the firmware reports a bad blob itself (fault frames)
+    };
+    let r = m.config().sample_rate_mhz;
+    let t = trial.rate_hz as f64 * 1000.0;
+    if (r as f64 - t).abs() > 0.01 * t {
+        return Err(format!(
+            "the model runs at {} Hz but the trial is sampled at {} Hz",
+            r as f64 / 1000.0,
+            trial.rate_hz
+        ));
+    }
+    Ok(Some(r))
+}
+
+/// A command the replay script sends before a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Scheduled {
+    /// Frame (= trial step) the command's bytes precede.
+    pub before_frame: u32,
+    /// The command.
+    pub command: Command,
+}
+
+/// Encodes scheduled commands (seq 1, 2, … in order) into a script for the firmware replay.
+pub fn encode_script(cmds: &[Scheduled]) -> Vec<(u32, Vec<u8>)> {
+    cmds.iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let mut b = [0u8; MAX_WIRE];
+            let n = protocol::encode(
+                &Frame {
+                    seq: i as u16 + 1,
+                    msg: Message::Command(s.command),
+                },
+                &mut b,
+            );
+            (s.before_frame, b[..n].to_vec())
+        })
+        .collect()
+}
+
+/// Result of a replay.
+#[derive(Clone, Debug)]
+pub struct Replayed {
+    /// The bytes the firmware would send.
+    pub wire: Vec<u8>,
+    /// Frames sent.
+    pub frames: usize,
+}
+
+/// Runs the firmware replay: `script` as raw (before_frame, bytes) items.
+pub fn replay(
+    profile: Profile,
+    blob: &[u8],
+    trial: &Trial,
+    script: &[(u32, Vec<u8>)],
+    open_wires: &[OpenWire],
+) -> Replayed {
+    let bytes = trial_bytes(trial, &profile);
+    let fw_trial = fw::Trial::new(&bytes, profile.channels);
+    let items: Vec<ScriptItem<'_>> = script
+        .iter()
+        .map(|(f, b)| ScriptItem {
+            before_frame: *f,
+            bytes: b,
+        })
+        .collect();
+    let mut wire = Vec::new();
+    let frames = fw::run(profile, blob, &fw_trial, &items, open_wires, |b| {
+        wire.extend_from_slice(b)
+    });
+    Replayed { wire, frames }
+}
+
+/// The QEMU comparison's scenario ([`fw::cheez_script`]) as script items.
+pub fn cheez_script() -> (Vec<(u32, Vec<u8>)>, Vec<OpenWire>) {
+    (
+        fw::cheez_script::SCRIPT
+            .iter()
+            .map(|s| (s.before_frame, s.bytes.to_vec()))
+            .collect(),
+        fw::cheez_script::OPEN_WIRES.to_vec(),
+    )
+}
+
+/// Decodes a byte stream (every frame, in order; undecodable runs skipped).
+pub fn decode_stream(wire: &[u8]) -> Vec<Frame> {
+    let mut d = Deframer::new();
+    wire.iter()
+        .filter_map(|&b| d.push_decode(b))
+        .filter_map(|r| r.ok())
+        .collect()
+}
+
+/// The flag frames of a stream, indexed by frame index (from the timestamp and `rate_mhz`).
+pub fn flags_by_frame(frames: &[Frame], rate_mhz: u32, len: usize) -> Vec<Option<Flags>> {
+    let mut v = vec![None; len];
+    for f in frames {
+        if let Message::Flags(fl) = f.msg {
+            let i = (fl.timestamp_us as f64 * rate_mhz as f64 / 1e9).round() as i64 - 1;
+            if let Some(slot) = usize::try_from(i).ok().and_then(|i| v.get_mut(i)) {
+                *slot = Some(fl);
+            }
+        }
+    }
+    v
+}
+
+/// A plot in the style of the paper's Fig. 8: normalized force (thin blue), labels
+/// (1 = stable, red dashed bold), prediction (1 = stable, blue bold: no channel flagged, or
+/// only `channel` when given), the largest p(unstable) (thin grey), grasp (green dotted), lift
+/// (yellow dotted) and drop (red dash-dot) marks. Faulted frames are shaded grey.
+pub fn plot_fig8(
+    trial: &Trial,
+    flags: &[Option<Flags>],
+    channel: Option<usize>,
+    title: &str,
+    path: &Path,
+) -> Result<()> {
+    let perr = |e: &dyn std::fmt::Display| DataError::Plot {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let n = trial.n_steps();
+    let chans: Vec<usize> = match channel {
+        Some(c) => vec![c],
+        None => {
+            let c = trial.contact_channels();
+            if c.is_empty() {
+                (0..trial.n_channels()).collect()
+            } else {
+                c
+            }
+        }
+    };
+    let force = trial.sum_over(&chans);
+    let fmax = force.iter().copied().fold(1e-9f32, f32::max);
+    let labels: Option<Vec<Option<f32>>> = trial
+        .step_labels
+        .as_ref()
+        .map(|l| l.iter().map(|s| s.map(|s| 1.0 - s.code() as f32)).collect())
+        .or_else(|| {
+            let l = label_annotated(trial, &LabelConfig::default().scaled_to(trial.rate_hz));
+            (!l.steps.is_empty()).then(|| {
+                let mut v = vec![None; n];
+                for (j, s) in l.steps.iter().enumerate() {
+                    v[l.seq_start + j] = Some(1.0 - s.code() as f32);
+                }
+                v
+            })
+        });
+    let mask = channel.map_or(u16::MAX, |c| 1u16 << c);
+    let pred: Vec<(f32, f32)> = flags
+        .iter()
+        .enumerate()
+        .filter_map(|(i, f)| f.map(|f| (i as f32, if f.unstable & mask != 0 { 0.0 } else { 1.0 })))
+        .collect();
+    let pmax: Vec<(f32, f32)> = flags
+        .iter()
+        .enumerate()
+        .filter_map(|(i, f)| {
+            let f = (*f)?;
+            let p = (0..f.channels as usize)
+                .filter(|&c| mask & (1 << c) != 0 && f.p[c] != P_NONE)
+                .map(|c| f.p[c])
+                .max()?;
+            Some((i as f32, p as f32 / 32768.0))
+        })
+        .collect();
+    let root = BitMapBackend::new(path, (1100, 420)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| perr(&e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 16))
+        .margin(8)
+        .x_label_area_size(30)
+        .y_label_area_size(45)
+        .build_cartesian_2d(0f32..n.max(1) as f32, -0.05f32..1.15)
+        .map_err(|e| perr(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc(format!("time step ({} Hz)", trial.rate_hz))
+        .y_desc("stable (1) / unstable (0)")
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(|e| perr(&e))?;
+    for (i, f) in flags.iter().enumerate() {
+        if let Some(f) = f
+            && f.fault & mask != 0
+        {
+            chart
+                .draw_series(std::iter::once(Rectangle::new(
+                    [(i as f32, -0.05), (i as f32 + 1.0, 1.15)],
+                    BLACK.mix(0.08).filled(),
+                )))
+                .map_err(|e| perr(&e))?;
+        }
+    }
+    let blue = RGBColor(31, 119, 180);
+    chart
+        .draw_series(LineSeries::new(
+            (0..n).map(|i| (i as f32, force[i] / fmax)),
+            blue.stroke_width(1),
+        ))
+        .map_err(|e| perr(&e))?
+        .label("normalized force")
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], blue));
+    chart
+        .draw_series(LineSeries::new(
+            pmax,
+            RGBColor(150, 150, 150).stroke_width(1),
+        ))
+        .map_err(|e| perr(&e))?
+        .label("max p(unstable)")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], RGBColor(150, 150, 150)));
+    if let Some(l) = labels {
+        let pts: Vec<(f32, f32)> = l
+            .iter()
+            .enumerate()
+            .filter_map(|(i, v)| v.map(|v| (i as f32, v)))
+            .collect();
+        chart
+            .draw_series(DashedLineSeries::new(pts, 8, 5, RED.stroke_width(3)))
+            .map_err(|e| perr(&e))?
+            .label("label")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], RED.stroke_width(3)));
+    }
+    chart
+        .draw_series(LineSeries::new(pred, blue.stroke_width(3)))
+        .map_err(|e| perr(&e))?
+        .label("prediction")
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], blue.stroke_width(3)));
+    let marks = [
+        (trial.marks.grasp_start, RGBColor(0, 160, 0), 2, 3, "grasp"),
+        (trial.marks.lift_start, RGBColor(230, 190, 0), 2, 3, "lift"),
+        (trial.drop_step, RGBColor(220, 0, 0), 10, 4, "drop"),
+    ];
+    for (m, col, dash, gap, name) in marks {
+        if let Some(m) = m.filter(|&m| m < n) {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    [(m as f32, -0.05), (m as f32, 1.15)],
+                    dash,
+                    gap,
+                    col.stroke_width(2),
+                ))
+                .map_err(|e| perr(&e))?
+                .label(format!("{name} {m}"))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
+        }
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font(("sans-serif", 11))
+        .position(SeriesLabelPosition::LowerLeft)
+        .draw()
+        .map_err(|e| perr(&e))?;
+    root.present().map_err(|e| perr(&e))
+}
