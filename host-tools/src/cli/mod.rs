@@ -6,6 +6,7 @@ mod dataset;
 mod label;
 mod progress;
 mod simulate;
+mod train;
 
 use std::process::ExitCode;
 
@@ -28,6 +29,8 @@ pub enum Command {
     Label(label::Args),
     /// Simulate force or suction trials, or validate the simulator against real data.
     Simulate(simulate::Args),
+    /// Train the paper's four LSTM variants (candle), with cross-validation by trial.
+    Train(train::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -35,6 +38,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Label(a) => label::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Train(a) => train::run(a),
     }
 }
 
