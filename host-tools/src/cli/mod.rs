@@ -3,6 +3,7 @@
 //! an `Args` struct and `run(args) -> anyhow::Result<()>`, and one variant below.
 
 mod dataset;
+mod eval;
 mod label;
 mod progress;
 mod simulate;
@@ -31,6 +32,8 @@ pub enum Command {
     Simulate(simulate::Args),
     /// Train the paper's four LSTM variants (candle), with cross-validation by trial.
     Train(train::Args),
+    /// Evaluate checkpoints (float and quantized) on real held-out and simulated data.
+    Eval(eval::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -39,6 +42,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Label(a) => label::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Train(a) => train::run(a),
+        Command::Eval(a) => eval::run(a),
     }
 }
 
