@@ -3,6 +3,7 @@
 //! an `Args` struct and `run(args) -> anyhow::Result<()>`, and one variant below.
 
 mod dataset;
+mod demo;
 mod eval;
 mod label;
 mod progress;
@@ -34,6 +35,8 @@ pub enum Command {
     Train(train::Args),
     /// Evaluate checkpoints (float and quantized) on real held-out and simulated data.
     Eval(eval::Args),
+    /// Run the shipped models through the bit-exact core on real and simulated data (README's main command).
+    Demo(demo::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -43,6 +46,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(a) => simulate::run(a),
         Command::Train(a) => train::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Demo(a) => demo::run(a),
     }
 }
 

@@ -305,7 +305,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         } else {
             vec![Vec::new()]
         };
-        let mut pooled: (Vec<&Sequence>, Vec<Vec<_>>) = (Vec::new(), Vec::new());
+        let mut pooled: (Vec<&Sequence>, Vec<Vec<_>>, Vec<Vec<_>>) =
+            (Vec::new(), Vec::new(), Vec::new());
         for (k, held) in folds.iter().enumerate() {
             let train_real: Vec<&Sequence> = real
                 .iter()
@@ -361,7 +362,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     .filter(|s| held.contains(&s.cs.trial_id))
                     .collect();
                 let p = probabilities(&ck.model, &[], Kind::Float, &test)?;
-                let d = slipguard_core::decision::DecisionConfig::of(&ck.model.config);
+                let d = DecisionConfig::of(&ck.model.config);
                 let preds: Vec<_> = p.iter().map(|q| decide(d, q)).collect();
                 let m = metrics_of(&test, &preds);
                 eprintln!(
@@ -370,6 +371,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     100.0 * m.success_rate.unwrap_or(0.0),
                     m.ahead_drop_rate.map(|x| format!("{:.2}%", 100.0 * x))
                 );
+                let plain = DecisionConfig {
+                    threshold_q15: 16384,
+                    raise_after: 1,
+                    clear_after: 1,
+                };
+                pooled.2.extend(p.iter().map(|q| decide(plain, q)));
                 pooled.0.extend(test);
                 pooled.1.extend(preds);
             } else {
@@ -389,11 +396,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         if a.cv > 0 {
             let m = metrics_of(&pooled.0, &pooled.1);
+            let m0 = metrics_of(&pooled.0, &pooled.2);
             let line = format!(
-                "{name}: {}-fold CV float: success {:.2}%, ahead-drop {:.2}% ({} seqs, {} failures); {}",
+                "{name}: {}-fold CV float: success {:.2}%, ahead-drop {:.2}%, false alarms {:.2}% (p>=0.5 alone: {:.2}% / {:.2}%) ({} seqs, {} failures); {}",
                 a.cv,
                 100.0 * m.success_rate.unwrap_or(0.0),
                 100.0 * m.ahead_drop_rate.unwrap_or(0.0),
+                100.0 * m.false_alarm_rate.unwrap_or(0.0),
+                100.0 * m0.success_rate.unwrap_or(0.0),
+                100.0 * m0.ahead_drop_rate.unwrap_or(0.0),
                 pooled.0.len(),
                 m.failure_sequences,
                 timing.join(", ")
