@@ -7,7 +7,8 @@
 //! `dense.weight` [2, K], `dense.bias` [2]. A `torch.nn.LSTM(I, H, batch_first=True)` named
 //! `lstm` and a `torch.nn.Linear(K, 2)` named `dense` save exactly these names.
 //!
-//! Metadata (all strings): see [`keys`].
+//! Metadata (all strings): see [`keys`]; the same keys as the exporter's settings
+//! (docs/export.md), so `slipguard-export` reads these checkpoints directly.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
@@ -22,8 +23,8 @@ use crate::train::lstm_prefixes;
 
 /// `__metadata__` keys.
 pub mod keys {
-    /// `"slipguard-float/1"`.
-    pub const FORMAT: &str = "format";
+    /// Settings format version, `"1"`.
+    pub const FORMAT: &str = "slipguard.format";
     /// Model name (≤ 12 ASCII characters go into the blob header).
     pub const NAME: &str = "name";
     /// `lstm`, `stft-lstm`, `data-stft-lstm` or `lstm-stft-lstm`.
@@ -38,15 +39,16 @@ pub mod keys {
     pub const INPUT_OFFSET: &str = "input_offset";
     /// Raw span mapped to +1.0.
     pub const INPUT_FULL_SCALE: &str = "input_full_scale";
-    /// STFT window length in samples.
-    pub const STFT_WINDOW_LEN: &str = "stft_window_len";
+    /// STFT window length N in samples.
+    pub const STFT_WINDOW_LEN: &str = "stft_window";
     /// First DFT bin used.
     pub const STFT_FIRST_BIN: &str = "stft_first_bin";
     /// Number of bins (bands).
-    pub const STFT_N_BINS: &str = "stft_n_bins";
+    pub const STFT_N_BINS: &str = "stft_bins";
     /// `rectangular` or `hann`.
-    pub const STFT_WINDOW: &str = "stft_window";
-    /// Hidden sizes, comma separated (`"128"`, or `"64,64"` for the dual variant).
+    pub const STFT_WINDOW: &str = "stft_shape";
+    /// Hidden sizes, comma separated (`"128"`, or `"64,64"` for the dual variant); informative,
+    /// the reader takes them from the tensor shapes.
     pub const HIDDEN: &str = "hidden";
     /// Decision threshold on p(unstable), e.g. `"0.5"`.
     pub const THRESHOLD: &str = "threshold";
@@ -60,8 +62,8 @@ pub mod keys {
     pub const NORM_STD: &str = "norm_std";
 }
 
-/// The format tag written by this module.
-pub const FORMAT: &str = "slipguard-float/1";
+/// The settings format version written by this module (the exporter's `slipguard.format`).
+pub const FORMAT: &str = "1";
 
 /// A float model plus free-form provenance metadata (training command, held-out trials, …).
 #[derive(Debug, Clone)]
@@ -181,10 +183,13 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> anyhow::Result<Mode
             shape: WindowShape::Rectangular,
         }
     };
-    let hs: Vec<u16> = get(keys::HIDDEN)?
-        .split(',')
-        .map(|h| num(keys::HIDDEN, h))
-        .collect::<anyhow::Result<_>>()?;
+    let hs: Vec<u16> = match md.get(keys::HIDDEN) {
+        Some(h) => h
+            .split(',')
+            .map(|h| num(keys::HIDDEN, h))
+            .collect::<anyhow::Result<_>>()?,
+        None => Vec::new(),
+    };
     let mut hidden = [0u16; 2];
     for (d, h) in hidden.iter_mut().zip(&hs) {
         *d = *h;
@@ -260,7 +265,10 @@ pub fn from_bytes(bytes: &[u8]) -> anyhow::Result<Checkpoint> {
     let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)?;
     let md: HashMap<String, String> = meta.metadata().clone().unwrap_or_default();
     let st = safetensors::SafeTensors::deserialize(bytes)?;
-    let config = config_from_metadata(&md)?;
+    let mut config = config_from_metadata(&md)?;
+    if let Some(v) = md.get(keys::FORMAT).filter(|v| v.as_str() != FORMAT) {
+        bail!("settings format `{v}` is not supported (expected {FORMAT})");
+    }
     let tensor = |n: &str| -> anyhow::Result<(Vec<f32>, Vec<usize>)> {
         let t = st
             .tensor(n)
@@ -281,7 +289,9 @@ pub fn from_bytes(bytes: &[u8]) -> anyhow::Result<Checkpoint> {
         let (w_hh, _) = tensor(&format!("{p}.weight_hh_l0"))?;
         let (b_ih, _) = tensor(&format!("{p}.bias_ih_l0"))?;
         let (b_hh, _) = tensor(&format!("{p}.bias_hh_l0"))?;
-        let hidden = config.hidden[k] as usize;
+        // Sizes come from the tensor shapes ([4H, I]).
+        let hidden = s_ih.first().copied().unwrap_or(0) / 4;
+        config.hidden[k] = hidden as u16;
         let input = s_ih.get(1).copied().unwrap_or(0);
         lstms.push(FloatLstm {
             input,
