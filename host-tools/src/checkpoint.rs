@@ -204,7 +204,10 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> anyhow::Result<Mode
         .transpose()?
         .unwrap_or(0.5);
     let small = |k: &str| -> anyhow::Result<u8> {
-        md.get(k).map(|v| num(k, v)).transpose().map(|v| v.unwrap_or(1))
+        md.get(k)
+            .map(|v| num(k, v))
+            .transpose()
+            .map(|v| v.unwrap_or(1))
     };
     Ok(ModelConfig {
         model_id: 0,

@@ -38,10 +38,7 @@ pub fn sequences_of(trials: &[Trial], cfg: &LabelConfig) -> Vec<Sequence> {
     let mut out = Vec::new();
     for t in trials {
         let l = label_annotated(t, cfg);
-        let lift = t
-            .marks
-            .lift_start
-            .and_then(|s| s.checked_sub(l.seq_start));
+        let lift = t.marks.lift_start.and_then(|s| s.checked_sub(l.seq_start));
         for cs in channel_sequences(t, &l) {
             out.push(Sequence {
                 cs,
@@ -74,12 +71,30 @@ pub fn sim_suction_sequences(seed: u64, count: usize, failure_share: f64) -> Vec
 
 /// Header settings of a hand-force model at 16.7 Hz (0…32,768 mN → Q1.15).
 pub fn force_config(variant: Variant, force_diff: bool, hidden: u16, name: &str) -> ModelConfig {
-    base_config(variant, force_diff, hidden, name, 16_700, InputUnit::MilliNewton, 0, 32_768)
+    base_config(
+        variant,
+        force_diff,
+        hidden,
+        name,
+        16_700,
+        InputUnit::MilliNewton,
+        0,
+        32_768,
+    )
 }
 
 /// Header settings of a suction model at 71 Hz (counts 6,400 ± 40,960 → Q1.15).
 pub fn suction_config(variant: Variant, force_diff: bool, hidden: u16, name: &str) -> ModelConfig {
-    base_config(variant, force_diff, hidden, name, 71_000, InputUnit::Counts, 6_400, 40_960)
+    base_config(
+        variant,
+        force_diff,
+        hidden,
+        name,
+        71_000,
+        InputUnit::Counts,
+        6_400,
+        40_960,
+    )
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -262,10 +277,18 @@ pub fn goal_score(m: &Metrics) -> f64 {
 
 /// Chooses threshold and hysteresis on validation sequences (float p), maximising
 /// [`goal_score`]. Returns the rule and its metrics.
-pub fn tune_decision(p: &[Vec<i16>], seqs: &[&Sequence]) -> (DecisionConfig, Metrics) {
+/// `raise_after` is at least `min_raise`.
+pub fn tune_decision(
+    p: &[Vec<i16>],
+    seqs: &[&Sequence],
+    min_raise: u8,
+) -> (DecisionConfig, Metrics) {
     let mut best: Option<(f64, DecisionConfig, Metrics)> = None;
     for thr in [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8] {
-        for raise in [1u8, 2, 3] {
+        for raise in [1u8, 2, 3, 4, 5]
+            .into_iter()
+            .filter(|&r| r >= min_raise.min(5))
+        {
             for clear in [1u8, 3, 10] {
                 let d = DecisionConfig {
                     threshold_q15: (thr * 32768.0) as i16,
@@ -414,7 +437,8 @@ pub fn row_markdown(r: &Row) -> String {
         pct(m.success_rate),
         pct(m.ahead_drop_rate),
         pct(m.false_alarm_rate),
-        m.lead_time.map_or("n/a".into(), |l| format!("{:.0}", l.median)),
+        m.lead_time
+            .map_or("n/a".into(), |l| format!("{:.0}", l.median)),
         pct(m.event_precision),
         pct(m.event_recall),
     )

@@ -217,11 +217,7 @@ fn extract(base: &FloatModel, varmap: &VarMap) -> anyhow::Result<FloatModel> {
             .map_err(err)
     };
     let mut m = base.clone();
-    for (l, p) in m
-        .lstms
-        .iter_mut()
-        .zip(lstm_prefixes(base.config.variant))
-    {
+    for (l, p) in m.lstms.iter_mut().zip(lstm_prefixes(base.config.variant)) {
         l.w_ih = get(&format!("{p}.weight_ih_l0"))?;
         l.w_hh = get(&format!("{p}.weight_hh_l0"))?;
         l.b_ih = get(&format!("{p}.bias_ih_l0"))?;
@@ -273,7 +269,9 @@ fn batch_loss(net: &Net, b: &Batch) -> candle_core::Result<Tensor> {
     let logits = net.forward(&b.x)?;
     let logp = candle_nn::ops::log_softmax(&logits, D::Minus1)?;
     let picked = logp.gather(&b.y.unsqueeze(2)?, 2)?.squeeze(2)?;
-    (picked * &b.w)?.sum_all()?.affine(-1.0 / b.wsum.max(1e-9), 0.0)
+    (picked * &b.w)?
+        .sum_all()?
+        .affine(-1.0 / b.wsum.max(1e-9), 0.0)
 }
 
 /// A fresh model for `config` (PyTorch-like init with `seed`) with normalisation fitted on

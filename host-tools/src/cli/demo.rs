@@ -123,7 +123,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     rows.push(run_blob(
         "hand-force",
         &hand,
-        &format!("simulated force, {} trials, seed {}", a.sim_count, a.sim_seed),
+        &format!(
+            "simulated force, {} trials, seed {}",
+            a.sim_count, a.sim_seed
+        ),
         &sf,
         plots,
     )?);

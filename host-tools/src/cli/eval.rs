@@ -40,6 +40,15 @@ pub struct Args {
     /// Plots per model and data set.
     #[arg(long, default_value_t = 4)]
     pub plot_count: usize,
+    /// Override every model's decision threshold (p(unstable)).
+    #[arg(long)]
+    pub threshold: Option<f64>,
+    /// Override every model's raise_after (hysteresis).
+    #[arg(long)]
+    pub raise_after: Option<u8>,
+    /// Override every model's clear_after.
+    #[arg(long)]
+    pub clear_after: Option<u8>,
     /// Also write the table (markdown) to this file.
     #[arg(long)]
     pub markdown: Option<PathBuf>,
@@ -189,10 +198,19 @@ pub fn eval_group(
             }
             for i in picked {
                 let s = seqs[i];
-                let slug: String = format!("{}-{}-{}-c{}", g.name, data_name, s.cs.trial_id, s.cs.channel)
-                    .chars()
-                    .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
-                    .collect();
+                let slug: String = format!(
+                    "{}-{}-{}-c{}",
+                    g.name, data_name, s.cs.trial_id, s.cs.channel
+                )
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect();
                 let title = format!(
                     "{} ({}) on {} c{}",
                     g.name,
@@ -230,16 +248,37 @@ pub fn heldout_lines(g: &Group) -> Vec<String> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let groups = resolve(&a.models)?;
+    let mut groups = resolve(&a.models)?;
+    for g in &mut groups {
+        for (ck, blob) in &mut g.members {
+            let c = &mut ck.model.config;
+            let before = (c.threshold_q15, c.raise_after, c.clear_after);
+            if let Some(t) = a.threshold {
+                c.threshold_q15 = (t * 32768.0).round().clamp(1.0, 32767.0) as u16;
+            }
+            if let Some(r) = a.raise_after {
+                c.raise_after = r.max(1);
+            }
+            if let Some(r) = a.clear_after {
+                c.clear_after = r.max(1);
+            }
+            if before != (c.threshold_q15, c.raise_after, c.clear_after) {
+                // The shipped blob carries the old rule: re-quantize with the new one.
+                *blob = None;
+            }
+        }
+    }
     let real = if a.no_real {
         Vec::new()
     } else {
         load_real(a.data.as_deref())?.1
     };
     let needs = |u: InputUnit| {
-        groups
-            .iter()
-            .any(|g| g.members.iter().any(|(c, _)| c.model.config.input_unit == u))
+        groups.iter().any(|g| {
+            g.members
+                .iter()
+                .any(|(c, _)| c.model.config.input_unit == u)
+        })
     };
     let sim_f = if needs(InputUnit::MilliNewton) {
         sim_force_sequences(a.sim_seed, a.sim_force, 0.3)

@@ -10,7 +10,7 @@ use slipguard_core::float::FloatModel;
 use slipguard_host::checkpoint::{self, Checkpoint};
 use slipguard_host::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
-    set_decision, sequences_of, sim_force_sequences, sim_suction_sequences, tune_decision,
+    sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
 };
 use slipguard_host::labels::{ChannelSequence, LabelConfig};
 use slipguard_host::train::{TrainConfig, init_model, split_by_trial, train};
@@ -94,6 +94,9 @@ pub struct Args {
     /// Pick threshold and hysteresis on the validation trials (overrides the three above).
     #[arg(long)]
     pub tune_decision: bool,
+    /// With --tune-decision: smallest raise_after the sweep may pick (suppresses start-up blips).
+    #[arg(long, default_value_t = 1)]
+    pub min_raise: u8,
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
@@ -136,8 +139,8 @@ pub fn load_real(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Sequence>)
         path.display()
     );
     let cfg = LabelConfig::default();
-    let trials = load_path(&path, &cfg, |_, _| {})
-        .with_context(|| format!("loading {}", path.display()))?;
+    let trials =
+        load_path(&path, &cfg, |_, _| {}).with_context(|| format!("loading {}", path.display()))?;
     Ok((path, sequences_of(&trials, &cfg)))
 }
 
@@ -189,7 +192,7 @@ impl Run<'_> {
     fn decision(&self, model: &mut FloatModel, val: &[&Sequence]) -> anyhow::Result<()> {
         let d = if self.a.tune_decision && !val.is_empty() {
             let p = probabilities(model, &[], Kind::Float, val)?;
-            let (d, m) = tune_decision(&p, val);
+            let (d, m) = tune_decision(&p, val, self.a.min_raise);
             eprintln!(
                 "  decision tuned on validation: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
                 d.threshold_q15 as f64 / 32768.0,
@@ -223,11 +226,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         label_lead: a.label_lead,
     };
     let command = std::env::args().collect::<Vec<_>>().join(" ");
-    let run = Run {
-        a: &a,
-        tc,
-        command,
-    };
+    let run = Run { a: &a, tc, command };
     let t_all = Instant::now();
     // Data.
     let (real, sim_pre, sim_mix) = match a.sensor {
@@ -244,7 +243,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             (real, pre, mix)
         }
         Sensor::Suction => {
-            anyhow::ensure!(a.cv == 0, "--cv needs real trials; suction is simulated only");
+            anyhow::ensure!(
+                a.cv == 0,
+                "--cv needs real trials; suction is simulated only"
+            );
             let mix = sim_suction_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share);
             (Vec::new(), Vec::new(), mix)
         }
