@@ -6,8 +6,8 @@ use slipguard_core::float::FloatModel;
 use slipguard_core::model::Model;
 use slipguard_host::checkpoint::{self, Checkpoint};
 use slipguard_host::evaluation::{
-    Kind, Sequence, decide, force_config, metrics_of, probabilities, quantize_model,
-    sequences_of, suction_config,
+    Kind, Sequence, decide, force_config, metrics_of, probabilities, quantize_model, sequences_of,
+    suction_config,
 };
 use slipguard_host::labels::{ChannelSequence, LabelConfig};
 use slipguard_host::train::{TrainConfig, init_model, train, train_labels};
@@ -90,7 +90,10 @@ fn label_shift_moves_the_unstable_region() {
 #[test]
 fn checkpoint_round_trip_every_variant() {
     for v in Variant::ALL {
-        for cfg in [force_config(v, true, 12, "rt"), suction_config(v, false, 8, "s")] {
+        for cfg in [
+            force_config(v, true, 12, "rt"),
+            suction_config(v, false, 8, "s"),
+        ] {
             let mut model = FloatModel::init_like_pytorch(cfg, 7);
             model.norm_mean.iter_mut().for_each(|m| *m = 0.125);
             model.config.threshold_q15 = 12_000;
@@ -189,7 +192,9 @@ fn card_figures(card: &str) -> Vec<(String, f64)> {
 }
 
 fn shipped(name: &str) -> (Vec<u8>, String) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models").join(name);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../models")
+        .join(name);
     (
         std::fs::read(dir.join(format!("{name}.bin"))).unwrap(),
         std::fs::read_to_string(dir.join("README.md")).unwrap(),
