@@ -47,6 +47,12 @@ pub struct TrainConfig {
     /// Training labels: unstable from this many steps before the drop (paper: 20). Evaluation
     /// always uses the paper's labels; this is the "label shift".
     pub label_lead: usize,
+    /// Loss weight multiplier of the first [`Self::start_steps`] steps of every sequence (1 = none).
+    /// The LSTM starts from a zero state on a near-zero force, which looks like the time after a
+    /// drop; weighting the start teaches it not to raise start-up alarms.
+    pub start_weight: f32,
+    /// Steps from grasp start that get [`Self::start_weight`].
+    pub start_steps: usize,
 }
 
 impl Default for TrainConfig {
@@ -59,6 +65,8 @@ impl Default for TrainConfig {
             seed: 1,
             class_weights: [1.0, 1.0],
             label_lead: 20,
+            start_weight: 1.0,
+            start_steps: 0,
         }
     }
 }
@@ -239,9 +247,10 @@ fn make_batch(
     p: &Prepared,
     idx: &[usize],
     nf: usize,
-    cw: [f32; 2],
+    cfg: &TrainConfig,
     dev: &Device,
 ) -> anyhow::Result<Batch> {
+    let cw = cfg.class_weights;
     let t_max = idx.iter().map(|&i| p.feats[i].len()).max().unwrap_or(0);
     let b = idx.len();
     let mut x = vec![0f32; b * t_max * nf];
@@ -253,7 +262,12 @@ fn make_batch(
             x[o..o + nf].copy_from_slice(row);
             let lab = p.labels[i][t];
             y[bi * t_max + t] = lab;
-            w[bi * t_max + t] = cw[lab as usize];
+            let start = if t < cfg.start_steps {
+                cfg.start_weight
+            } else {
+                1.0
+            };
+            w[bi * t_max + t] = cw[lab as usize] * start;
         }
     }
     let wsum: f64 = w.iter().map(|&v| v as f64).sum();
@@ -312,7 +326,7 @@ pub fn train(
     let val_batches: Vec<Batch> = (0..val.len())
         .collect::<Vec<_>>()
         .chunks(cfg.batch.max(1))
-        .map(|c| make_batch(&pval, c, nf, cfg.class_weights, &dev))
+        .map(|c| make_batch(&pval, c, nf, cfg, &dev))
         .collect::<anyhow::Result<_>>()?;
     let eval_loss = |net: &Net, batches: &[Batch]| -> anyhow::Result<f64> {
         let (mut s, mut n) = (0f64, 0f64);
@@ -336,7 +350,7 @@ pub fn train(
         order.shuffle(&mut rng);
         let (mut s, mut n) = (0f64, 0f64);
         for chunk in order.chunks(cfg.batch.max(1)) {
-            let b = make_batch(&ptrain, chunk, nf, cfg.class_weights, &dev)?;
+            let b = make_batch(&ptrain, chunk, nf, cfg, &dev)?;
             let loss = batch_loss(&net, &b).map_err(err)?;
             opt.backward_step(&loss).map_err(err)?;
             s += loss.to_scalar::<f32>().map_err(err)? as f64 * b.wsum;

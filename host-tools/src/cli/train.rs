@@ -61,6 +61,11 @@ pub struct Args {
     /// Training labels are unstable from this many steps before the drop (evaluation keeps 20).
     #[arg(long, default_value_t = 20)]
     pub label_lead: usize,
+    /// Loss weight of the first --start-steps steps of every sequence (against start-up alarms).
+    #[arg(long, default_value_t = 1.0)]
+    pub start_weight: f32,
+    #[arg(long, default_value_t = 0)]
+    pub start_steps: usize,
     /// Simulated trials for pre-training (0 = none); the model is then fine-tuned on real data.
     #[arg(long, default_value_t = 0)]
     pub sim_pretrain: usize,
@@ -224,6 +229,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         seed: a.seed,
         class_weights: class_weights(&a.class_weights)?,
         label_lead: a.label_lead,
+        start_weight: a.start_weight,
+        start_steps: a.start_steps,
     };
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let run = Run { a: &a, tc, command };
