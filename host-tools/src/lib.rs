@@ -1,14 +1,17 @@
 //! slipguard host tools: the data layer (trials, loaders, labelling, simulator,
-//! metrics, plots). Later issues add training, evaluation, replay and monitor.
+//! metrics, plots), training (`train`, candle), float checkpoints (`checkpoint`) and
+//! evaluation (`evaluation`). Later issues add replay and monitor.
 //!
 //! Every tool reads one [`trial::Trial`]. Library errors are
 //! [`error::DataError`]; the `slipguard` binary adds `anyhow` at its edge.
 
 pub mod baselines;
 pub mod closed_loop;
+pub mod checkpoint;
 pub mod dsp;
 pub mod eagle;
 pub mod error;
+pub mod evaluation;
 pub mod labels;
 pub mod metrics;
 pub mod monitor;
@@ -16,6 +19,7 @@ pub mod plot;
 pub mod recording;
 pub mod replay;
 pub mod sim;
+pub mod train;
 pub mod trial;
 pub mod validate;
 

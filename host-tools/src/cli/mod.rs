@@ -5,11 +5,14 @@
 mod baselines;
 mod closed_loop;
 mod dataset;
+mod demo;
+mod eval;
 mod label;
 mod monitor;
 mod progress;
 mod replay;
 mod simulate;
+mod train;
 
 use std::process::ExitCode;
 
@@ -40,6 +43,12 @@ pub enum Command {
     Replay(replay::Args),
     /// Simulated hand lifting objects with a light grip: drop rate with slip prediction off vs on.
     ClosedLoop(closed_loop::Args),
+    /// Train the paper's four LSTM variants (candle), with cross-validation by trial.
+    Train(train::Args),
+    /// Evaluate checkpoints (float and quantized) on real held-out and simulated data.
+    Eval(eval::Args),
+    /// Run the shipped models through the bit-exact core on real and simulated data (README's main command).
+    Demo(demo::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -51,6 +60,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Monitor(a) => monitor::run(a),
         Command::Replay(a) => replay::run(a),
         Command::ClosedLoop(a) => closed_loop::run(a),
+        Command::Train(a) => train::run(a),
+        Command::Eval(a) => eval::run(a),
+        Command::Demo(a) => demo::run(a),
     }
 }
 

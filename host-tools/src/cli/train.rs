@@ -1,0 +1,440 @@
+//! `slipguard train`: the paper's four variants with candle; cross-validation by trial,
+//! simulated pre-training and mixing, float checkpoints and quantized blobs.
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use slipguard_core::blob::Variant;
+use slipguard_core::decision::DecisionConfig;
+use slipguard_core::float::FloatModel;
+use slipguard_host::checkpoint::{self, Checkpoint};
+use slipguard_host::evaluation::{
+    self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
+    sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
+};
+use slipguard_host::labels::{ChannelSequence, LabelConfig};
+use slipguard_host::train::{TrainConfig, init_model, split_by_trial, train};
+use slipguard_host::{eagle, load_path};
+
+use super::progress::bar;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Sensor {
+    /// Fingertip force, 16.7 Hz, real eagle-shoal trials (+ simulated force).
+    Force,
+    /// Suction-cup pressure, 71 Hz, simulated only (the paper's Table V set-up).
+    Suction,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Real data (default: $SLIPGUARD_DATA or <repo>/../shared/data/eagle-shoal).
+    pub path: Option<PathBuf>,
+    /// Output folder (checkpoints, blobs, logs).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, value_enum, default_value_t = Sensor::Force)]
+    pub sensor: Sensor,
+    /// Variants, comma separated: lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm, or all.
+    #[arg(long, default_value = "all")]
+    pub variant: String,
+    /// Add the force difference d(t) = x(t) - x(t-1) (paper eq. 3) as an input.
+    #[arg(long)]
+    pub force_diff: bool,
+    /// LSTM hidden size (each LSTM of the dual variant).
+    #[arg(long, default_value_t = 128)]
+    pub hidden: u16,
+    #[arg(long, default_value_t = 6e-4)]
+    pub lr: f64,
+    #[arg(long, default_value_t = 60)]
+    pub epochs: usize,
+    /// Early stopping: epochs without a better validation loss.
+    #[arg(long, default_value_t = 10)]
+    pub patience: usize,
+    #[arg(long, default_value_t = 32)]
+    pub batch: usize,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Loss weights of the stable and unstable class, e.g. 1,2.
+    #[arg(long, default_value = "1,1")]
+    pub class_weights: String,
+    /// Training labels are unstable from this many steps before the drop (evaluation keeps 20).
+    #[arg(long, default_value_t = 20)]
+    pub label_lead: usize,
+    /// Loss weight of the first --start-steps steps of every sequence (against start-up alarms).
+    #[arg(long, default_value_t = 1.0)]
+    pub start_weight: f32,
+    #[arg(long, default_value_t = 0)]
+    pub start_steps: usize,
+    /// Simulated trials for pre-training (0 = none); the model is then fine-tuned on real data.
+    #[arg(long, default_value_t = 0)]
+    pub sim_pretrain: usize,
+    /// Epochs of the pre-training.
+    #[arg(long, default_value_t = 15)]
+    pub pretrain_epochs: usize,
+    /// Simulated trials mixed into the (fine-)tuning set (suction: the whole training set).
+    #[arg(long, default_value_t = 0)]
+    pub sim_mix: usize,
+    /// Share of simulated trials drawn as drops.
+    #[arg(long, default_value_t = 0.3)]
+    pub sim_failure_share: f64,
+    /// Seed of the simulated training trials (pre-training uses it, mixing it + 1).
+    #[arg(long, default_value_t = 11)]
+    pub sim_seed: u64,
+    /// Cross-validation by trial with this many folds (0 = train one model on every trial).
+    #[arg(long, default_value_t = 0)]
+    pub cv: usize,
+    /// Share of the training trials held out (by trial) for early stopping.
+    #[arg(long, default_value_t = 0.2)]
+    pub val_share: f64,
+    /// Decision threshold on p(unstable).
+    #[arg(long, default_value_t = 0.5)]
+    pub threshold: f64,
+    /// Steps at or above the threshold before the flag rises.
+    #[arg(long, default_value_t = 1)]
+    pub raise_after: u8,
+    /// Steps below the threshold before the flag clears.
+    #[arg(long, default_value_t = 1)]
+    pub clear_after: u8,
+    /// Pick threshold and hysteresis on the validation trials (overrides the three above).
+    #[arg(long)]
+    pub tune_decision: bool,
+    /// With --tune-decision: smallest raise_after the sweep may pick (suppresses start-up blips).
+    #[arg(long, default_value_t = 1)]
+    pub min_raise: u8,
+    /// Name prefix of the models (default: the variant's name).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Short name written into the blob header (≤ 12 ASCII characters).
+    #[arg(long)]
+    pub blob_name: Option<String>,
+}
+
+pub fn parse_variants(s: &str) -> anyhow::Result<Vec<Variant>> {
+    if s == "all" {
+        return Ok(Variant::ALL.to_vec());
+    }
+    s.split(',')
+        .map(|v| {
+            Variant::ALL
+                .into_iter()
+                .find(|x| x.name() == v.trim())
+                .with_context(|| format!("unknown variant `{v}`"))
+        })
+        .collect()
+}
+
+fn class_weights(s: &str) -> anyhow::Result<[f32; 2]> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .context("--class-weights: two numbers, e.g. 1,2")?;
+    anyhow::ensure!(v.len() == 2, "--class-weights needs two numbers");
+    Ok([v[0], v[1]])
+}
+
+/// Loads the real trials as sequences, with a clear message when the folder is missing.
+pub fn load_real(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Sequence>)> {
+    let path = path.map_or_else(eagle::default_data_dir, Path::to_path_buf);
+    anyhow::ensure!(
+        path.exists(),
+        "data folder {} not found: set SLIPGUARD_DATA or pass the eagle-shoal folder \
+         (the shared trials are in /work/shared/data/eagle-shoal)",
+        path.display()
+    );
+    let cfg = LabelConfig::default();
+    let trials =
+        load_path(&path, &cfg, |_, _| {}).with_context(|| format!("loading {}", path.display()))?;
+    Ok((path, sequences_of(&trials, &cfg)))
+}
+
+fn refs(v: &[Sequence]) -> Vec<&ChannelSequence> {
+    v.iter().map(|s| &s.cs).collect()
+}
+
+struct Run<'a> {
+    a: &'a Args,
+    tc: TrainConfig,
+    command: String,
+}
+
+impl Run<'_> {
+    fn fit(
+        &self,
+        what: &str,
+        init: &FloatModel,
+        tr: &[&ChannelSequence],
+        val: &[&ChannelSequence],
+        tc: &TrainConfig,
+    ) -> anyhow::Result<(FloatModel, usize, f64)> {
+        let pb = bar(tc.epochs as u64, what);
+        let t0 = Instant::now();
+        let out = train(init, tr, val, tc, |l| {
+            pb.set_position(l.epoch as u64);
+            pb.set_message(format!(
+                "{what} {:.4}/{:.4} {:.1}s",
+                l.train_loss, l.val_loss, l.seconds
+            ));
+        })?;
+        pb.finish_and_clear();
+        let n = out.history.len();
+        let spe = out.history.iter().map(|l| l.seconds).sum::<f64>() / n.max(1) as f64;
+        eprintln!(
+            "  {what}: {} train / {} val sequences, {n} epochs ({:.2} s/epoch, {:.0} s), best epoch {} (val loss {:.4})",
+            tr.len(),
+            val.len(),
+            spe,
+            t0.elapsed().as_secs_f64(),
+            out.best_epoch,
+            out.history
+                .get(out.best_epoch.saturating_sub(1))
+                .map_or(f64::NAN, |l| l.val_loss)
+        );
+        Ok((out.model, out.best_epoch, spe))
+    }
+
+    fn decision(&self, model: &mut FloatModel, val: &[&Sequence]) -> anyhow::Result<()> {
+        let d = if self.a.tune_decision && !val.is_empty() {
+            let p = probabilities(model, &[], Kind::Float, val)?;
+            let (d, m) = tune_decision(&p, val, self.a.min_raise);
+            eprintln!(
+                "  decision tuned on validation: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
+                d.threshold_q15 as f64 / 32768.0,
+                d.raise_after,
+                d.clear_after,
+                100.0 * m.success_rate.unwrap_or(0.0),
+                100.0 * m.ahead_drop_rate.unwrap_or(0.0)
+            );
+            d
+        } else {
+            DecisionConfig {
+                threshold_q15: (self.a.threshold * 32768.0).round().clamp(1.0, 32767.0) as i16,
+                raise_after: self.a.raise_after.max(1),
+                clear_after: self.a.clear_after.max(1),
+            }
+        };
+        set_decision(&mut model.config, d);
+        Ok(())
+    }
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let variants = parse_variants(&a.variant)?;
+    let tc = TrainConfig {
+        lr: a.lr,
+        epochs: a.epochs,
+        batch: a.batch,
+        patience: a.patience,
+        seed: a.seed,
+        class_weights: class_weights(&a.class_weights)?,
+        label_lead: a.label_lead,
+        start_weight: a.start_weight,
+        start_steps: a.start_steps,
+    };
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let run = Run { a: &a, tc, command };
+    let t_all = Instant::now();
+    // Data.
+    let (real, sim_pre, sim_mix) = match a.sensor {
+        Sensor::Force => {
+            let (path, real) = load_real(a.path.as_deref())?;
+            eprintln!(
+                "real: {} sequences from {} ({} failure sequences)",
+                real.len(),
+                path.display(),
+                real.iter().filter(|s| s.failure()).count()
+            );
+            let pre = sim_force_sequences(a.sim_seed, a.sim_pretrain, a.sim_failure_share);
+            let mix = sim_force_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share);
+            (real, pre, mix)
+        }
+        Sensor::Suction => {
+            anyhow::ensure!(
+                a.cv == 0,
+                "--cv needs real trials; suction is simulated only"
+            );
+            let mix = sim_suction_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share);
+            (Vec::new(), Vec::new(), mix)
+        }
+    };
+    if !sim_pre.is_empty() || !sim_mix.is_empty() {
+        eprintln!(
+            "simulated: {} pre-training and {} mixed sequences",
+            sim_pre.len(),
+            sim_mix.len()
+        );
+    }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let mut summary = Vec::new();
+    for v in variants {
+        let name = match &a.name {
+            Some(n) if n.contains("{variant}") => n.replace("{variant}", v.name()),
+            Some(n) => n.clone(),
+            None => v.name().to_string(),
+        };
+        let blob_name = a.blob_name.clone().unwrap_or_else(|| {
+            let short = match v {
+                Variant::Force => "lstm",
+                Variant::Stft => "stft",
+                Variant::ForceStft => "data+stft",
+                Variant::DualLstm => "dual",
+            };
+            short.to_string()
+        });
+        let config = match a.sensor {
+            Sensor::Force => ev::force_config(v, a.force_diff, a.hidden, &blob_name),
+            Sensor::Suction => ev::suction_config(v, a.force_diff, a.hidden, &blob_name),
+        };
+        eprintln!(
+            "== {name}: {} (d(t) {}, hidden {}, {} MACs/step)",
+            v.name(),
+            a.force_diff,
+            a.hidden,
+            config.macs_per_step()
+        );
+        // Pre-training on simulated trials, shared by all folds.
+        let mut timing = Vec::new();
+        let pre = if sim_pre.is_empty() {
+            None
+        } else {
+            let all = refs(&sim_pre);
+            let init = init_model(config, a.seed, &all);
+            let (tr, val) = split_by_trial(&all, a.val_share, a.seed);
+            let tc = TrainConfig {
+                epochs: a.pretrain_epochs,
+                ..run.tc.clone()
+            };
+            let (m, _, spe) = run.fit("pretrain", &init, &tr, &val, &tc)?;
+            timing.push(format!("pretrain {spe:.2} s/epoch ({} seqs)", tr.len()));
+            Some(m)
+        };
+        let folds: Vec<Vec<String>> = if a.cv > 0 {
+            cv_folds(&real, a.cv)
+        } else {
+            vec![Vec::new()]
+        };
+        let mut pooled: (Vec<&Sequence>, Vec<Vec<_>>, Vec<Vec<_>>) =
+            (Vec::new(), Vec::new(), Vec::new());
+        for (k, held) in folds.iter().enumerate() {
+            let train_real: Vec<&Sequence> = real
+                .iter()
+                .filter(|s| !held.contains(&s.cs.trial_id))
+                .collect();
+            let tr_refs: Vec<&ChannelSequence> = train_real.iter().map(|s| &s.cs).collect();
+            let (mut tr, val) = split_by_trial(&tr_refs, a.val_share, a.seed + k as u64);
+            let (mut tr_mix, val_mix) = if a.sensor == Sensor::Suction {
+                split_by_trial(&refs(&sim_mix), a.val_share, a.seed)
+            } else {
+                (refs(&sim_mix), Vec::new())
+            };
+            tr.append(&mut tr_mix);
+            let val: Vec<&ChannelSequence> = val.into_iter().chain(val_mix).collect();
+            let init = match &pre {
+                Some(m) => m.clone(),
+                None => init_model(config, a.seed, &tr),
+            };
+            let what = if a.cv > 0 {
+                format!("fold {k}")
+            } else {
+                "train".to_string()
+            };
+            let (mut model, best_epoch, spe) = run.fit(&what, &init, &tr, &val, &run.tc)?;
+            timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
+            let val_seqs: Vec<&Sequence> = real
+                .iter()
+                .chain(&sim_mix)
+                .filter(|s| val.iter().any(|v| std::ptr::eq(*v, &s.cs)))
+                .collect();
+            run.decision(&mut model, &val_seqs)?;
+            let mut extra = std::collections::BTreeMap::new();
+            extra.insert("train_command".into(), run.command.clone());
+            extra.insert("best_epoch".into(), best_epoch.to_string());
+            extra.insert("seconds_per_epoch".into(), format!("{spe:.3}"));
+            let ids = |v: &[&ChannelSequence]| {
+                let mut ids: Vec<String> = v.iter().map(|s| s.trial_id.clone()).collect();
+                ids.sort();
+                ids.dedup();
+                ids.join(",")
+            };
+            extra.insert("val_trials".into(), ids(&val));
+            if a.cv > 0 {
+                extra.insert("heldout_trials".into(), held.join(","));
+                extra.insert("fold".into(), format!("{k}/{}", a.cv));
+            }
+            let ck = Checkpoint { model, extra };
+            if a.cv > 0 {
+                let p = a.out.join(&name).join(format!("fold{k}.safetensors"));
+                checkpoint::write(&p, &ck)?;
+                let test: Vec<&Sequence> = real
+                    .iter()
+                    .filter(|s| held.contains(&s.cs.trial_id))
+                    .collect();
+                let p = probabilities(&ck.model, &[], Kind::Float, &test)?;
+                let d = DecisionConfig::of(&ck.model.config);
+                let preds: Vec<_> = p.iter().map(|q| decide(d, q)).collect();
+                let m = metrics_of(&test, &preds);
+                eprintln!(
+                    "  fold {k} held out {}: success {:.2}%, ahead-drop {:?}",
+                    held.join(" "),
+                    100.0 * m.success_rate.unwrap_or(0.0),
+                    m.ahead_drop_rate.map(|x| format!("{:.2}%", 100.0 * x))
+                );
+                let plain = DecisionConfig {
+                    threshold_q15: 16384,
+                    raise_after: 1,
+                    clear_after: 1,
+                };
+                pooled.2.extend(p.iter().map(|q| decide(plain, q)));
+                pooled.0.extend(test);
+                pooled.1.extend(preds);
+            } else {
+                let p = a.out.join(format!("{name}.safetensors"));
+                checkpoint::write(&p, &ck)?;
+                let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+                let blob = quantize_model(&ck.model, &calib)?;
+                let bp = a.out.join(format!("{name}.bin"));
+                std::fs::write(&bp, &blob).with_context(|| format!("writing {}", bp.display()))?;
+                eprintln!(
+                    "  wrote {} and {} ({} bytes)",
+                    p.display(),
+                    bp.display(),
+                    blob.len()
+                );
+            }
+        }
+        if a.cv > 0 {
+            let m = metrics_of(&pooled.0, &pooled.1);
+            let m0 = metrics_of(&pooled.0, &pooled.2);
+            let line = format!(
+                "{name}: {}-fold CV float: success {:.2}%, ahead-drop {:.2}%, false alarms {:.2}% (p>=0.5 alone: {:.2}% / {:.2}%) ({} seqs, {} failures); {}",
+                a.cv,
+                100.0 * m.success_rate.unwrap_or(0.0),
+                100.0 * m.ahead_drop_rate.unwrap_or(0.0),
+                100.0 * m.false_alarm_rate.unwrap_or(0.0),
+                100.0 * m0.success_rate.unwrap_or(0.0),
+                100.0 * m0.ahead_drop_rate.unwrap_or(0.0),
+                pooled.0.len(),
+                m.failure_sequences,
+                timing.join(", ")
+            );
+            eprintln!("{line}");
+            summary.push(line);
+        } else {
+            summary.push(format!("{name}: {}", timing.join(", ")));
+        }
+    }
+    let log = a.out.join("train-summary.txt");
+    std::fs::write(
+        &log,
+        format!(
+            "{}\n{}\ntotal {:.0} s\n",
+            run.command,
+            summary.join("\n"),
+            t_all.elapsed().as_secs_f64()
+        ),
+    )?;
+    println!("{}", summary.join("\n"));
+    eprintln!("total {:.0} s", t_all.elapsed().as_secs_f64());
+    Ok(())
+}
