@@ -2,14 +2,14 @@
 // that goes into the `.model` section (the MODEL flash region) and writes the linker fragment.
 //
 // Blob, first found: `$SLIPGUARD_MODEL` (a path, relative to the repository root unless
-// absolute), `models/default.bin` (the trained default model from issue 4, once it exists),
+// absolute), `models/hand-force/hand-force.bin` (the shipped default model, issue 4),
 // else the golden variant (c) H=128 test blob `firmware/core/tests/fixtures/bench/model.bin`
 // (PyTorch-init weights: right sizes and timing, meaningless predictions).
 
 /// Copies the chosen blob to `$OUT_DIR/model.bin`, writes `$OUT_DIR/model.x` and tells cargo.
 fn select_model_blob(repo_root: &std::path::Path, out: &std::path::Path) {
     println!("cargo:rerun-if-env-changed=SLIPGUARD_MODEL");
-    let default = repo_root.join("models").join("default.bin");
+    let default = repo_root.join("models").join("hand-force").join("hand-force.bin");
     println!("cargo:rerun-if-changed={}", default.display());
     let blob = match std::env::var_os("SLIPGUARD_MODEL") {
         Some(p) => {

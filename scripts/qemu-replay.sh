@@ -24,6 +24,14 @@ elf="${CARGO_TARGET_DIR:-$root/firmware/qemu-app/target}/thumbv7em-none-eabihf/r
 slipguard="${CARGO_TARGET_DIR:-$root/target}/debug/slipguard"
 trial="$root/firmware/app/fixtures/Cheez_100_814_top_3.csv"
 golden="$root/firmware/core/tests/fixtures/bench/model.bin"
+# The blob the build embeds, chosen by the same rule as firmware/build-model.rs.
+if [ -n "${SLIPGUARD_MODEL:-}" ]; then
+  case "$SLIPGUARD_MODEL" in /*) model="$SLIPGUARD_MODEL" ;; *) model="$root/$SLIPGUARD_MODEL" ;; esac
+elif [ -f "$root/models/hand-force/hand-force.bin" ]; then
+  model="$root/models/hand-force/hand-force.bin"
+else
+  model="$golden"
+fi
 
 qemu() { # qemu ELF [extra args…]: runs in $work, output file qemu-frames.bin
   local elf="$1"
@@ -47,11 +55,11 @@ compare() { # compare NAME HOST QEMU
 # 1. The built-in model blob.
 qemu "$elf"
 mv "$work/qemu-frames.bin" "$work/qemu.bin"
-"$slipguard" replay "$trial" --model "$golden" --script cheez --out "$work/host.bin"
-compare "golden model" "$work/host.bin" "$work/qemu.bin"
+"$slipguard" replay "$trial" --model "$model" --script cheez --out "$work/host.bin"
+compare "built-in model $(basename "$model")" "$work/host.bin" "$work/qemu.bin"
 
 # 2. A corrupted blob (one flipped bit inside a tensor) in the MODEL region.
-python3 - "$golden" "$work/corrupt.bin" <<'PY'
+python3 - "$model" "$work/corrupt.bin" <<'PY'
 import sys
 b = bytearray(open(sys.argv[1], 'rb').read())
 b[5000] ^= 0x10

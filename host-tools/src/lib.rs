@@ -6,8 +6,8 @@
 //! [`error::DataError`]; the `slipguard` binary adds `anyhow` at its edge.
 
 pub mod baselines;
-pub mod closed_loop;
 pub mod checkpoint;
+pub mod closed_loop;
 pub mod dsp;
 pub mod eagle;
 pub mod error;

@@ -183,6 +183,23 @@ impl FloatDense {
     }
 }
 
+/// The model id the exporter and the trainer give a blob when none is set: CRC-32 of the
+/// weights' f32 bytes (LSTMs in order, each W_ih, W_hh, b_ih, b_hh, then the dense layer).
+pub fn weights_id(lstms: &[FloatLstm], dense: &FloatDense) -> u32 {
+    let mut d = crate::blob::CRC32.digest();
+    for l in lstms {
+        for v in [&l.w_ih, &l.w_hh, &l.b_ih, &l.b_hh] {
+            for x in v.iter() {
+                d.update(&x.to_le_bytes());
+            }
+        }
+    }
+    for x in dense.w.iter().chain(&dense.b) {
+        d.update(&x.to_le_bytes());
+    }
+    d.finalize()
+}
+
 /// p(class 1) = softmax(logits)[1].
 pub fn p_from_logits(l: [f32; 2]) -> f32 {
     sigmoid(l[1] - l[0])

@@ -8,6 +8,7 @@
 //! - Normalisation: μ in Q1.15, 1/(8σ) as gain·2^-shift.
 //! - Cell state: the finest Q(15-C).C whose range covers 1.25 × the largest |c| the float model
 //!   reaches on the calibration sequences (C = 11, ±16, without calibration data).
+//! - Model id: when the header's is 0, [`crate::float::weights_id`] of the weights.
 
 use crate::blob::{BlobTensors, DenseRowParams, FeatureNorm, LstmRowParams, pad4, write_blob};
 use crate::float::{FloatLstm, FloatModel, FloatModelError};
@@ -49,6 +50,9 @@ pub fn quantize(
         }
     }
     let mut config = model.config;
+    if config.model_id == 0 {
+        config.model_id = crate::float::weights_id(&model.lstms, &model.dense);
+    }
     config.cell_frac_bits = [0, 0];
     for k in 0..n_lstm {
         let bits = match cell_frac_bits {

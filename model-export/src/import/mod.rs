@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use slipguard_core::MAX_HIDDEN;
-use slipguard_core::blob::{CRC32, Variant};
+use slipguard_core::blob::Variant;
 use slipguard_core::float::{FloatDense, FloatLstm, FloatModel, FloatModelError};
 
 use crate::error::{ExportError, Result, check_finite};
@@ -372,21 +372,7 @@ pub fn assemble(imp: &Imported, res: &Resolved) -> Result<(FloatModel, bool)> {
     Ok((model, given))
 }
 
-/// CRC-32 of the float weights (the default model id).
-pub fn weights_id(lstms: &[FloatLstm], dense: &FloatDense) -> u32 {
-    let mut d = CRC32.digest();
-    for l in lstms {
-        for v in [&l.w_ih, &l.w_hh, &l.b_ih, &l.b_hh] {
-            for x in v.iter() {
-                d.update(&x.to_le_bytes());
-            }
-        }
-    }
-    for x in dense.w.iter().chain(&dense.b) {
-        d.update(&x.to_le_bytes());
-    }
-    d.finalize()
-}
+pub use slipguard_core::float::weights_id;
 
 /// Reorders the four gate blocks of a 4H-row tensor (`cols` values per row).
 /// `src_block[k]` is the block of the source that becomes PyTorch's block k (i, f, g, o).
