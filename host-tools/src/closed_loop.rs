@@ -296,6 +296,9 @@ pub struct ControllerConfig {
     pub step_fraction: f64,
     /// Frame rate (mHz): the model's.
     pub rate_mhz: u32,
+    /// Decision settings the controller sends with a set-threshold command right after grasp
+    /// start (threshold Q0.15, raise after, clear after); `None` keeps the blob's.
+    pub decision: Option<(u16, u8, u8)>,
 }
 
 /// One sample of the trace (every 10 ms).
@@ -386,6 +389,7 @@ pub fn run_trial(
     let alpha = dt / (0.02 + dt);
     let mut next_scan = 0.0f64;
     let mut grasp_sent = false;
+    let mut settings_sent = false;
     let step = ctl.step_fraction * sc.initial_grip_n;
     for i in 0..ticks {
         let t = i as f64 * dt;
@@ -475,13 +479,28 @@ pub fn run_trial(
                 FlagSource::Model(_) => {
                     let app = app.as_mut().expect("app");
                     let mut bytes = Vec::new();
+                    let mut commands: Vec<Command> = Vec::new();
+                    if !settings_sent {
+                        // The controller sets its decision settings once, at start-up.
+                        settings_sent = true;
+                        if let Some((threshold_q15, raise_after, clear_after)) = ctl.decision {
+                            commands.push(Command::SetThreshold {
+                                threshold_q15,
+                                raise_after,
+                                clear_after,
+                            });
+                        }
+                    }
                     if !grasp_sent && t >= T_CONTACT_S {
                         // The controller sends grasp start when its fingers touch.
                         grasp_sent = true;
+                        commands.push(Command::GraspStart);
+                    }
+                    for (k, cmd) in commands.into_iter().enumerate() {
                         let n = protocol::encode(
                             &Frame {
-                                seq: 1,
-                                msg: Message::Command(Command::GraspStart),
+                                seq: 1 + k as u16,
+                                msg: Message::Command(cmd),
                             },
                             &mut buf,
                         );

@@ -9,6 +9,7 @@ use slipguard_host::replay::golden_model_path;
 const CTL: ControllerConfig = ControllerConfig {
     step_fraction: 0.2,
     rate_mhz: 16_700,
+    decision: None,
 };
 
 #[test]
@@ -113,5 +114,14 @@ fn firmware_in_the_loop() {
     assert_eq!((o.flag_frames, o.increases), (0, 0));
     assert!(o.fault_frames >= 7);
     let off = run_trial(&sc, FlagSource::Off, &CTL, None, 1);
+    assert_eq!(o.dropped, off.dropped);
+    // The controller's set-threshold command reaches the firmware: at a threshold of 0.9 the
+    // golden model's p ≈ 0.55 never flags, so the grip never rises and the trial ends as "off".
+    let strict = ControllerConfig {
+        decision: Some((29_491, 1, 1)),
+        ..CTL
+    };
+    let o = run_trial(&sc, FlagSource::Model(blob.as_bytes()), &strict, None, 1);
+    assert_eq!((o.unstable_frames, o.increases), (0, 0));
     assert_eq!(o.dropped, off.dropped);
 }

@@ -39,6 +39,16 @@ pub struct Args {
     /// Threads (default: available cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Decision threshold on p(unstable) the controller sets after grasp start (set-threshold
+    /// command); default: the blob's.
+    #[arg(long)]
+    pub threshold: Option<f64>,
+    /// Consecutive unstable frames before the flag rises, with `--threshold`.
+    #[arg(long, default_value_t = 1, requires = "threshold")]
+    pub raise_after: u8,
+    /// Consecutive stable frames before the flag clears, with `--threshold`.
+    #[arg(long, default_value_t = 1, requires = "threshold")]
+    pub clear_after: u8,
 }
 
 struct Source {
@@ -103,9 +113,19 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             oracle: true,
         });
     }
+    let decision = match a.threshold {
+        Some(t) if t > 0.0 && t < 1.0 && a.raise_after >= 1 && a.clear_after >= 1 => {
+            Some(((t * 32768.0).round() as u16, a.raise_after, a.clear_after))
+        }
+        Some(t) => anyhow::bail!(
+            "--threshold {t} must be in (0, 1) and --raise-after/--clear-after at least 1"
+        ),
+        None => None,
+    };
     let ctl = ControllerConfig {
         step_fraction: a.step,
         rate_mhz,
+        decision,
     };
     let mut md = String::new();
     let _ = writeln!(
@@ -117,6 +137,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         100.0 * a.step,
         rate_mhz as f64 / 1000.0
     );
+    if let Some((t, r, c)) = decision {
+        let _ = writeln!(
+            md,
+            "Decision set by the controller after grasp start (set-threshold command): p ≥ {:.3}, \
+             raise after {r}, clear after {c} frames.\n",
+            t as f64 / 32768.0
+        );
+    }
     let _ = writeln!(
         md,
         "| situation | prediction | drops | prevented (of drops off) | grip increases / trial | final grip (median, N) | final / minimum needed (median) |"
