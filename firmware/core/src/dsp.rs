@@ -8,13 +8,11 @@
 //!
 //! - [`dot_i8_i16`]: one portable dot product (the reference); [`dot_i8_i16_fast`] the same
 //!   number with SXTB16/PKHBT/SMLAD over activations in natural order (the dense layer).
-//! - [`dot_rows_i8_q15`]: many rows of int8 weights (at a fixed stride) against one activation
-//!   vector that [`permute_q15`] has put in *SXTB16 lane order*. On `thumbv7em` with the DSP
-//!   extension it runs the assembly kernel below; elsewhere (the host, and any argument the
-//!   kernel cannot take) [`dot_rows_i8_q15_portable`], which defines the result.
 //! - [`lstm_gate_sums`]: the LSTM's two dot products of every gate row (x part and h part of
-//!   the blob's contiguous rows) in one assembly pass, into uninitialised memory; reference
-//!   [`lstm_gate_sums_portable`].
+//!   the blob's contiguous rows) against activations that [`permute_q15`] has put in *SXTB16
+//!   lane order*, in one assembly pass on `thumbv7em` with the DSP extension, into
+//!   uninitialised memory; elsewhere (the host, and any argument the kernel cannot take)
+//!   [`lstm_gate_sums_portable`], built on [`dot_i8_q15_permuted`], which defines the result.
 //! - [`lstm_gate_rows`]: the gate pass (requantisation, σ/tanh by interval table) in assembly;
 //!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
 //!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
@@ -89,8 +87,8 @@ pub fn dot_i8_i16_fast(w: &[i8], v: &[i16]) -> i32 {
     sum
 }
 
-/// Longest activation vector (in values) that [`dot_rows_i8_q15`] runs in assembly; longer ones
-/// take the portable path. 140 ≥ MAX_HIDDEN and ≥ MAX_INPUT.
+/// Longest activation vector (in values) the h part of [`lstm_gate_sums`] runs in assembly
+/// (= 4·[`MAX_ASM_H_WORDS`]); longer ones take the portable path. 140 ≥ MAX_HIDDEN.
 pub const MAX_ASM_VALUES: usize = 4 * (3 * ASM_BLOCKS + 2);
 /// Unrolled 3-word blocks in the assembly kernel.
 const ASM_BLOCKS: usize = 11;
@@ -179,36 +177,6 @@ pub fn dot_i8_q15_permuted(w: &[i8], act: &[u32]) -> i32 {
     acc
 }
 
-/// `out[r] = Σ_k w[r·stride + k]·v[k]` for every `r < out.len()`, with v in [`permute_q15`]'s
-/// order (`act`): the reference of [`dot_rows_i8_q15`]. A row that runs past the end of `w`
-/// uses the weights that exist (as [`dot_i8_q15_permuted`]); one starting past it gives 0.
-pub fn dot_rows_i8_q15_portable(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) {
-    for (r, o) in out.iter_mut().enumerate() {
-        let row = r
-            .checked_mul(stride)
-            .and_then(|s| w.get(s..))
-            .unwrap_or(&[]);
-        *o = dot_i8_q15_permuted(row, act);
-    }
-}
-
-/// Many rows against one permuted activation vector: the same result as
-/// [`dot_rows_i8_q15_portable`] (`out[r] = Σ_k w[r·stride + k]·v[k]` over
-/// `k < 4·(act.len() / 2)`), for any arguments.
-///
-/// It runs in assembly on a Cortex-M with the DSP extension when every row fits in `w`, `w`
-/// starts on a 4-byte boundary, `stride` is a multiple of 4 and `act` holds at most
-/// [`MAX_ASM_VALUES`] values; otherwise (and on every other target) portably.
-/// No overflow for such sizes: 140 terms of at most 2^22 stay below 2^30.
-#[inline]
-pub fn dot_rows_i8_q15(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) {
-    #[cfg(slipguard_dsp)]
-    if arm::dot_rows(w, stride, act, out) {
-        return;
-    }
-    dot_rows_i8_q15_portable(w, stride, act, out)
-}
-
 /// Weight words per LSTM row that [`lstm_gate_sums`] runs in assembly: x part (≥ MAX_INPUT / 4)
 /// and h part (≥ MAX_HIDDEN / 4).
 pub const MAX_ASM_X_WORDS: usize = 3 * ASM_X_BLOCKS + 2;
@@ -219,9 +187,9 @@ pub const MAX_ASM_H_WORDS: usize = 3 * ASM_BLOCKS + 2;
 const ASM_X_BLOCKS: usize = 1;
 
 /// The reference of [`lstm_gate_sums`]: `out[r] = [Σ_k w[r·stride + k]·x[k],
-/// Σ_k w[hh_offset + r·stride + k]·h[k]]`, x and h in [`permute_q15`]'s order, with the row
-/// semantics of [`dot_rows_i8_q15_portable`] (the two sums are exactly its results for `w` and
-/// for `w[hh_offset..]`).
+/// Σ_k w[hh_offset + r·stride + k]·h[k]]`, x and h in [`permute_q15`]'s order, each sum a
+/// [`dot_i8_q15_permuted`] of the row (a row that runs past the end of `w` uses the weights
+/// that exist; one starting past it gives 0).
 pub fn lstm_gate_sums_portable(
     w: &[i8],
     stride: usize,
@@ -452,182 +420,6 @@ mod arm {
              smlad r2, r4, r8, r2
              smlad r2, r12, r9, r2"
         };
-    }
-
-    /// What the assembly reads (one pointer in r0; fields at fixed offsets).
-    #[repr(C)]
-    struct Params {
-        /// +0: first row's first weight word.
-        w: *const i8,
-        /// +4: the permuted activations.
-        act: *const u32,
-        /// +8: first output.
-        out: *mut i32,
-        /// +12: one past the last output.
-        out_end: *mut i32,
-        /// +16: bytes from the end of one row's segment to the start of the next.
-        skip: usize,
-        /// +20: number of 3-word blocks per row (≤ ASM_BLOCKS).
-        blocks: usize,
-        /// +24: words left after the blocks (0, 1 or 2).
-        rem: usize,
-    }
-
-    /// Runs the assembly kernel if the arguments suit it; returns false (and writes nothing)
-    /// if the caller must take the portable path.
-    #[inline]
-    pub(super) fn dot_rows(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) -> bool {
-        let words = act.len() / 2; // weight words per row
-        let rows = out.len();
-        let seg = 4 * words;
-        let fits = match rows.checked_sub(1) {
-            None => return true, // nothing to compute
-            Some(last) => last
-                .checked_mul(stride)
-                .and_then(|s| s.checked_add(seg))
-                .is_some_and(|end| end <= w.len()),
-        };
-        if !fits
-            || words > 3 * ASM_BLOCKS + 2
-            || !stride.is_multiple_of(4)
-            || !(w.as_ptr() as usize).is_multiple_of(4)
-        {
-            return false;
-        }
-        let p = Params {
-            w: w.as_ptr(),
-            act: act.as_ptr(),
-            out: out.as_mut_ptr(),
-            // In bounds: one past the end of `out`.
-            out_end: out.as_mut_ptr_range().end,
-            // Added to the pointer modulo 2^32, so overlapping rows (stride < seg) work too.
-            skip: stride.wrapping_sub(seg),
-            blocks: words / 3,
-            rem: words % 3,
-        };
-        // SAFETY: the checks above guarantee that the kernel only reads
-        // `w[r·stride .. r·stride + 4·words]` for r < rows (all inside `w`, word-aligned, since
-        // `w` and `stride` are), `act[..2·words]` (a `[u32]`, aligned) and writes `out[..rows]`
-        // (exclusively borrowed); `blocks ≤ ASM_BLOCKS` and `rem < 3` keep the computed jump
-        // inside the unrolled code. The asm saves and restores every callee-saved register it
-        // uses (r4-r11, lr) and sp, and declares r0-r3 and r12 clobbered.
-        unsafe { kernel(&p) };
-        true
-    }
-
-    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`dot_rows`] checks.
-    #[inline(never)]
-    unsafe fn kernel(p: &Params) {
-        // Registers inside the kernel:
-        //   r0 weight pointer, r1 activation pointer, r2 accumulator, r3-r5 three weight words,
-        //   r6-r11 six activation words, r12 scratch, lr output pointer.
-        // Stack (after the pushes): [sp] act, [sp+4] row entry, [sp+8] block entry,
-        //   [sp+12] skip, [sp+16] out_end.
-        // A block (14 instructions, 56 bytes, all 32-bit encodings) computes 12 MACs:
-        //   LDM 3 weight words, LDM 6 activation words, then per weight word
-        //   SXTB16 (odd bytes), SXTB16 (even bytes, in place), SMLAD, SMLAD.
-        // SAFETY: see the caller; every memory access is inside the buffers `p` describes.
-        unsafe {
-            core::arch::asm!(
-                "push {{r4-r11, lr}}",
-                "sub sp, sp, #20",
-                "ldr r1, [r0, #4]",
-                "str r1, [sp, #0]",
-                "ldr r1, [r0, #16]",
-                "str r1, [sp, #12]",
-                "ldr r1, [r0, #12]",
-                "str r1, [sp, #16]",
-                // Block entry = end of the unrolled blocks - blocks · 56 bytes (Thumb bit set).
-                "ldr r1, [r0, #20]",
-                // Every ADR sits on a word boundary: LLVM's Thumb ADR fixup measures from the
-                // instruction's PC + 4 unaligned, the CPU from Align(PC + 4, 4).
-                ".p2align 2",
-                "adr.w r2, 2f",
-                "movs r3, #56",
-                "mls r2, r1, r3, r2",
-                "orr r2, r2, #1",
-                "str r2, [sp, #8]",
-                // Row entry: the block entry, or a stub for 1 or 2 leftover words first.
-                "ldr r1, [r0, #24]",
-                "cbz r1, 4f",
-                ".p2align 2",
-                "adr.w r2, 5f",
-                "cmp r1, #1",
-                "beq 3f",
-                ".p2align 2",
-                "adr.w r2, 6f",
-                "3:",
-                "orr r2, r2, #1",
-                "4:",
-                "str r2, [sp, #4]",
-                "ldr lr, [r0, #8]",
-                "ldr r0, [r0, #0]",
-                // Row loop.
-                "1:",
-                "movs r2, #0",
-                "ldr r1, [sp, #0]",
-                "ldr pc, [sp, #4]",
-                "7:",
-                ".rept {blocks}",
-                "ldmia.w r0!, {{r3, r4, r5}}",
-                "ldmia.w r1!, {{r6, r7, r8, r9, r10, r11}}",
-                "sxtb16 r12, r3, ror #8",
-                "sxtb16 r3, r3",
-                "smlad r2, r3, r6, r2",
-                "smlad r2, r12, r7, r2",
-                "sxtb16 r12, r4, ror #8",
-                "sxtb16 r4, r4",
-                "smlad r2, r4, r8, r2",
-                "smlad r2, r12, r9, r2",
-                "sxtb16 r12, r5, ror #8",
-                "sxtb16 r5, r5",
-                "smlad r2, r5, r10, r2",
-                "smlad r2, r12, r11, r2",
-                ".endr",
-                "2:",
-                ".if (2b - 7b) != 56 * {blocks}",
-                ".error \"dsp kernel: unrolled block is not 56 bytes\"",
-                ".endif",
-                "str r2, [lr], #4",
-                "ldr r12, [sp, #12]",
-                "add r0, r0, r12",
-                "ldr r12, [sp, #16]",
-                "cmp lr, r12",
-                "bne 1b",
-                "b 9f",
-                // One leftover word.
-                "5:",
-                "ldr r3, [r0], #4",
-                "ldrd r6, r7, [r1], #8",
-                "sxtb16 r12, r3, ror #8",
-                "sxtb16 r3, r3",
-                "smlad r2, r3, r6, r2",
-                "smlad r2, r12, r7, r2",
-                "ldr pc, [sp, #8]",
-                // Two leftover words.
-                "6:",
-                "ldmia.w r0!, {{r3, r4}}",
-                "ldmia.w r1!, {{r6, r7, r8, r9}}",
-                "sxtb16 r12, r3, ror #8",
-                "sxtb16 r3, r3",
-                "smlad r2, r3, r6, r2",
-                "smlad r2, r12, r7, r2",
-                "sxtb16 r12, r4, ror #8",
-                "sxtb16 r4, r4",
-                "smlad r2, r4, r8, r2",
-                "smlad r2, r12, r9, r2",
-                "ldr pc, [sp, #8]",
-                "9:",
-                "add sp, sp, #20",
-                "pop {{r4-r11, lr}}",
-                blocks = const ASM_BLOCKS,
-                inout("r0") p as *const Params => _,
-                out("r1") _,
-                out("r2") _,
-                out("r3") _,
-                out("r12") _,
-            );
-        }
     }
 
     /// See `lstm_gate_rows`.
@@ -912,7 +704,7 @@ mod arm {
     /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_rows`] checks.
     #[inline(never)]
     unsafe fn lstm_kernel(p: &LstmParams) {
-        // Registers as in `kernel`: r0 weight pointer (one stream: x part, h part, next row),
+        // Registers: r0 weight pointer (one stream: x part, h part, next row),
         // r1 activation pointer, r2 accumulator, r3-r5 weight words, r6-r11 activation words,
         // r12 scratch, lr output pointer. Stack: [sp] x, [sp+4] x entry, [sp+8] x block entry,
         // [sp+12] h, [sp+16] h entry, [sp+20] h block entry, [sp+24] out_end.
@@ -1052,6 +844,19 @@ mod arm {
 
 #[cfg(test)]
 mod tests {
+    /// `out[r] = Σ_k w[r·stride + k]·v[k]` for every `r < out.len()`, with v in [`permute_q15`]'s
+    /// order (`act`): many rows of [`dot_i8_q15_permuted`]. A row that runs past the end of `w`
+    /// uses the weights that exist (as [`dot_i8_q15_permuted`]); one starting past it gives 0.
+    fn dot_rows_i8_q15_portable(w: &[i8], stride: usize, act: &[u32], out: &mut [i32]) {
+        for (r, o) in out.iter_mut().enumerate() {
+            let row = r
+                .checked_mul(stride)
+                .and_then(|s| w.get(s..))
+                .unwrap_or(&[]);
+            *o = dot_i8_q15_permuted(row, act);
+        }
+    }
+
     use super::*;
 
     #[test]
@@ -1107,7 +912,7 @@ mod tests {
             let words = permute_q15(&v, &mut act);
             assert_eq!(words, 2 * n.div_ceil(4));
             let mut out = [0i32; 3];
-            dot_rows_i8_q15(&w, stride, &act[..words], &mut out);
+            dot_rows_i8_q15_portable(&w, stride, &act[..words], &mut out);
             for (r, &o) in out.iter().enumerate() {
                 let row = &w[r * stride..][..n];
                 let want: i64 = row.iter().zip(&v).map(|(&a, &b)| a as i64 * b as i64).sum();
@@ -1123,12 +928,12 @@ mod tests {
         // v = 1, 3, 2, 4, 5, 7, 6, 8 in natural order.
         let w = [1i8; 10];
         let mut out = [0i32; 4];
-        dot_rows_i8_q15(&w, 6, &act, &mut out);
+        dot_rows_i8_q15_portable(&w, 6, &act, &mut out);
         // Row 0: all 8 weights; row 1 starts at 6: 4 weights (1+3+2+4); row 2 starts past.
         assert_eq!(out, [36, 10, 0, 0]);
-        dot_rows_i8_q15(&w, 0, &act[..3], &mut out);
+        dot_rows_i8_q15_portable(&w, 0, &act[..3], &mut out);
         assert_eq!(out, [10; 4]); // a trailing odd word is ignored
-        dot_rows_i8_q15(&[], usize::MAX, &act, &mut out);
+        dot_rows_i8_q15_portable(&[], usize::MAX, &act, &mut out);
         assert_eq!(out, [0; 4]);
         // Too short an output buffer for permute_q15: whole groups only.
         let mut short = [0u32; 3];
