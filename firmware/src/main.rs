@@ -61,32 +61,8 @@ const BAUD: u32 = 921_600;
 /// Independent watchdog timeout: fed once per frame (every ≤ 60 ms) and on the stall path.
 const WATCHDOG_US: u32 = 1_000_000;
 
-#[repr(C, align(4))]
-struct Aligned<T>(T);
-
-const BLOB_BYTES: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/model.bin"));
-
-/// The default model blob (chosen at build time, see `build-model.rs`), placed at the start of
-/// the MODEL flash region by `model.x`. The firmware reads the region, not this constant.
-#[used]
-#[unsafe(link_section = ".model")]
-static MODEL_BLOB: Aligned<[u8; BLOB_BYTES.len()]> =
-    Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/model.bin")));
-
-unsafe extern "C" {
-    static __smodel: u8;
-    static __emodel: u8;
-}
-
-/// The MODEL flash region as flashed (the blob may have been re-flashed on its own).
-fn model_region() -> &'static [u8] {
-    let start = &raw const __smodel;
-    let end = &raw const __emodel;
-    let len = (end as usize).saturating_sub(start as usize);
-    // SAFETY: the linker script defines both symbols as the bounds of the MODEL region, which is
-    // memory-mapped flash, readable and unchanged for the whole run.
-    unsafe { core::slice::from_raw_parts(start, len) }
-}
+// The default model blob in the `.model` section and `model_region()`.
+include!("../model-region.rs");
 
 /// What the inference task receives, in arrival order.
 enum Event {

@@ -35,32 +35,8 @@ use static_cell::StaticCell;
 /// The sensor profile of this build.
 const PROFILE: Profile = Profile::HAND;
 
-#[repr(C, align(4))]
-struct Aligned<T>(T);
-
-const BLOB_BYTES: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/model.bin"));
-
-/// The default model blob, placed at the start of the MODEL region by `model.x`.
-#[used]
-#[unsafe(link_section = ".model")]
-static MODEL_BLOB: Aligned<[u8; BLOB_BYTES.len()]> =
-    Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/model.bin")));
-
-unsafe extern "C" {
-    static __smodel: u8;
-    static __emodel: u8;
-}
-
-/// The whole MODEL region as the CPU sees it (whatever was loaded there, not the compile-time
-/// contents of [`MODEL_BLOB`]).
-fn model_region() -> &'static [u8] {
-    let start = &raw const __smodel;
-    let end = &raw const __emodel;
-    let len = (end as usize).saturating_sub(start as usize);
-    // SAFETY: the linker script defines the two symbols as the bounds of the MODEL region,
-    // which is flash (read-only, always mapped) for the whole run.
-    unsafe { core::slice::from_raw_parts(start, len) }
-}
+// The default model blob in the `.model` section and `model_region()`.
+include!("../../model-region.rs");
 
 /// What the inference task receives, in arrival order.
 enum Event {
