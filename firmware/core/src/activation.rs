@@ -71,7 +71,9 @@ const fn pairs(v: &[i16; ENTRIES]) -> [[i32; 2]; ENTRIES - 1] {
     t
 }
 
-/// An activation's interval table: 512 entries `[lo·2^7 + 2^6, hi - lo]`.
+/// An activation's interval table: 512 entries `[lo·2^7 + 2^6, hi - lo]`, lo and hi the
+/// Q0.15 values at the interval's ends, so the first word is Q0.22 (the `<< 7` makes room for
+/// the 7 position bits, plus half an output LSB for rounding) and the second a Q0.15 step.
 pub type IntervalTable = [[i32; 2]; ENTRIES - 1];
 
 /// σ intervals (see [`pairs`]).
