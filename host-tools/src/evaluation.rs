@@ -382,31 +382,7 @@ fn draw_prediction(
         .legend(|(x, y)| {
             PathElement::new([(x, y), (x + 14, y)], RGBColor(0, 40, 160).stroke_width(3))
         });
-    let marks = [
-        (Some(0), RGBColor(0, 160, 0), "grasp", 2, 3),
-        (s.lift, RGBColor(230, 190, 0), "lift", 2, 3),
-        (s.cs.drop_index, RGBColor(220, 0, 0), "drop", 10, 3),
-    ];
-    for (m, col, name, dash, gap) in marks {
-        if let Some(m) = m.filter(|&m| m < n) {
-            chart
-                .draw_series(DashedLineSeries::new(
-                    [(m as f32, -0.05), (m as f32, 1.15)],
-                    dash,
-                    gap,
-                    col.stroke_width(2),
-                ))?
-                .label(format!("{name} {m}"))
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
-        }
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.3))
-        .label_font(("sans-serif", 11))
-        .position(SeriesLabelPosition::LowerLeft)
-        .draw()?;
+    crate::plot::draw_fig8_marks(&mut chart, n, Some(0), s.lift, s.cs.drop_index)?;
     root.present()?;
     Ok(())
 }

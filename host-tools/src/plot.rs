@@ -273,3 +273,47 @@ pub fn plot_stack(trials: &[&Trial], path: &Path) -> Result<()> {
     }
     root.present().map_err(|e| perr(path, e))
 }
+
+/// A Fig. 8-style chart: x in steps, y from -0.05 to 1.15 (1 = stable, 0 = unstable).
+pub type Fig8Chart<'a, DB> = ChartContext<
+    'a,
+    DB,
+    Cartesian2d<plotters::coord::types::RangedCoordf32, plotters::coord::types::RangedCoordf32>,
+>;
+
+/// The paper's Fig. 8 phase marks — grasp (green dotted), lift (yellow dotted), drop (red
+/// dash-dot) — as vertical lines with legend entries, then the legend itself. Shared by every
+/// Fig. 8 plot (`evaluation::plot_prediction`, `replay::plot_fig8`).
+pub fn draw_fig8_marks<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Fig8Chart<'a, DB>,
+    n: usize,
+    grasp: Option<usize>,
+    lift: Option<usize>,
+    drop: Option<usize>,
+) -> std::result::Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let marks = [
+        (grasp, RGBColor(0, 160, 0), "grasp", 2, 3),
+        (lift, RGBColor(230, 190, 0), "lift", 2, 3),
+        (drop, RGBColor(220, 0, 0), "drop", 10, 4),
+    ];
+    for (m, col, name, dash, gap) in marks {
+        if let Some(m) = m.filter(|&m| m < n) {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    [(m as f32, -0.05), (m as f32, 1.15)],
+                    dash,
+                    gap,
+                    col.stroke_width(2),
+                ))?
+                .label(format!("{name} {m}"))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
+        }
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font(("sans-serif", 11))
+        .position(SeriesLabelPosition::LowerLeft)
+        .draw()
+}

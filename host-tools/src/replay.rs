@@ -309,32 +309,13 @@ pub fn plot_fig8(
         .map_err(|e| perr(&e))?
         .label("prediction")
         .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], blue.stroke_width(3)));
-    let marks = [
-        (trial.marks.grasp_start, RGBColor(0, 160, 0), 2, 3, "grasp"),
-        (trial.marks.lift_start, RGBColor(230, 190, 0), 2, 3, "lift"),
-        (trial.drop_step, RGBColor(220, 0, 0), 10, 4, "drop"),
-    ];
-    for (m, col, dash, gap, name) in marks {
-        if let Some(m) = m.filter(|&m| m < n) {
-            chart
-                .draw_series(DashedLineSeries::new(
-                    [(m as f32, -0.05), (m as f32, 1.15)],
-                    dash,
-                    gap,
-                    col.stroke_width(2),
-                ))
-                .map_err(|e| perr(&e))?
-                .label(format!("{name} {m}"))
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
-        }
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.3))
-        .label_font(("sans-serif", 11))
-        .position(SeriesLabelPosition::LowerLeft)
-        .draw()
-        .map_err(|e| perr(&e))?;
+    crate::plot::draw_fig8_marks(
+        &mut chart,
+        n,
+        trial.marks.grasp_start,
+        trial.marks.lift_start,
+        trial.drop_step,
+    )
+    .map_err(|e| perr(&e))?;
     root.present().map_err(|e| perr(&e))
 }
