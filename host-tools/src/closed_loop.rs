@@ -23,6 +23,7 @@ use slipguard_app::frontend::Frontend;
 use slipguard_app::profile::Profile;
 use slipguard_core::protocol::{self, Command, Deframer, Frame, MAX_WIRE, Message, status};
 
+use crate::evaluation::Sequence;
 use crate::sim::force::{
     AREA_LOSS, EROSION_ONSET, ForceParams, ForceSimConfig, INTERNAL_HZ, Intent, KINETIC_RATIO,
     LOSS_TAU_S, RHO_STICK_SLIP,
@@ -283,9 +284,21 @@ pub enum FlagSource<'a> {
     Off,
     /// The firmware with this model blob.
     Model(&'a [u8]),
-    /// A perfect predictor with the firmware's latency: "unstable" when the true load ratio at
-    /// the frame's last sample was at or above the stick-slip onset (reference only).
-    Oracle,
+    /// A perfect detector with the firmware's latency: "unstable" when the true load ratio at
+    /// the last sample of the frame `delay_frames` before the one being sent was at or above
+    /// the stick-slip onset (reference only; `delay_frames` > 0 shows what a detector that
+    /// needs that many frames to see the slip could at best do).
+    Oracle {
+        /// Frames between the slip state and the frame that reports it.
+        delay_frames: usize,
+    },
+    /// Training-data teacher: the oracle's flags, each acted on with probability `act_prob`
+    /// (slips caught late or not at all), so that recordings hold slips that recover as well
+    /// as slips that end in a drop.
+    Teacher {
+        /// Probability that an unstable frame raises the grip.
+        act_prob: f64,
+    },
 }
 
 /// Settings of the controller.
@@ -299,6 +312,9 @@ pub struct ControllerConfig {
     /// Decision settings the controller sends with a set-threshold command right after grasp
     /// start (threshold Q0.15, raise after, clear after); `None` keeps the blob's.
     pub decision: Option<(u16, u8, u8)>,
+    /// Flags are ignored for this long after grasp start (s): the model's state starts from
+    /// zero at grasp start and its first frames are not predictions (0 = act on every flag).
+    pub settle_s: f64,
 }
 
 /// One sample of the trace (every 10 ms).
@@ -314,6 +330,29 @@ pub struct TracePoint {
     pub pads: f64,
     /// Load ratio.
     pub rho: f64,
+}
+
+/// One frame as the model sees it, recorded from grasp start on (training data).
+#[derive(Clone, Copy, Debug)]
+pub struct FrameRecord {
+    /// Time of the frame's last sample (s).
+    pub t: f64,
+    /// Per-channel model input (mN, [`Profile::to_model_units`] of the front end's output).
+    pub model_units: [i32; MAX_CHANNELS],
+    /// True load ratio at the frame's last sample.
+    pub rho: f64,
+    /// Gross slip at the frame's last sample.
+    pub gross: bool,
+    /// The object is lost.
+    pub lost: bool,
+}
+
+impl FrameRecord {
+    /// Ground truth of the frame: incipient slip (ρ at or above the stick-slip onset), gross
+    /// slip or loss. This is what the oracle flags, one frame late.
+    pub fn unstable(&self) -> bool {
+        self.lost || self.gross || self.rho >= RHO_STICK_SLIP
+    }
 }
 
 /// Outcome of one closed-loop trial.
@@ -339,6 +378,8 @@ pub struct Outcome {
     pub raise_times: Vec<f64>,
     /// Trace every 10 ms.
     pub trace: Vec<TracePoint>,
+    /// Every frame from grasp start on.
+    pub frames: Vec<FrameRecord>,
 }
 
 /// Force a pad reads (mN) → ADC code of the hand profile with the force simulator's noise
@@ -368,6 +409,13 @@ pub fn run_trial(
     let period_s = 1000.0 / ctl.rate_mhz as f64;
     let scan_dt = period_s / RATIO as f64;
     let mut rng = trial_rng(seed, 0xC0FF_EE00);
+    // The teacher's coin has its own stream so that the sensor noise does not depend on it.
+    let mut coin = trial_rng(seed, 0xC0FF_EE01);
+    let (act_prob, oracle_delay) = match source {
+        FlagSource::Teacher { act_prob } => (act_prob, 0),
+        FlagSource::Oracle { delay_frames } => (1.0, delay_frames),
+        _ => (1.0, 0),
+    };
     let mut app = match source {
         FlagSource::Model(blob) => Some(App::new(profile, blob)),
         _ => None,
@@ -405,7 +453,8 @@ pub fn run_trial(
                                 out.unstable_frames += 1;
                                 // Flags count from grasp start (the fingers' contact) on.
                                 if grip_override.is_none()
-                                    && t >= T_CONTACT_S
+                                    && t >= T_CONTACT_S + ctl.settle_s
+                                    && (act_prob >= 1.0 || coin.random_bool(act_prob.max(0.0)))
                                     && contact.t_loss.is_none()
                                     && cmd < MAX_GRIP_N
                                 {
@@ -455,11 +504,26 @@ pub fn run_trial(
             let Some(input) = frontend.push_scan(&scan) else {
                 continue;
             };
+            if t >= T_CONTACT_S {
+                out.frames.push(FrameRecord {
+                    t,
+                    model_units: core::array::from_fn(|c| {
+                        profile.to_model_units(input.value_q4[c], 0)
+                    }),
+                    rho: contact.rho,
+                    gross: contact.gross,
+                    lost: contact.t_loss.is_some(),
+                });
+            }
             let deliver = t + period_s + 56.0 * 10.0 / BAUD;
             match source {
                 FlagSource::Off => {}
-                FlagSource::Oracle => {
-                    let unstable = contact.t_loss.is_none() && contact.rho >= RHO_STICK_SLIP;
+                FlagSource::Oracle { .. } | FlagSource::Teacher { .. } => {
+                    // The frame just recorded is the newest; a late oracle looks `delay` back.
+                    let n = out.frames.len();
+                    let unstable = contact.t_loss.is_none()
+                        && n > oracle_delay
+                        && out.frames[n - 1 - oracle_delay].rho >= RHO_STICK_SLIP;
                     let f = Frame {
                         seq: input.index as u16,
                         msg: Message::Flags(protocol::Flags {
@@ -571,6 +635,8 @@ pub struct Cell {
     pub drops: usize,
     /// Mean grip increases per trial.
     pub mean_increases: f64,
+    /// Mean grip increases per trial before the lift (no load yet: start-up alarms).
+    pub mean_increases_before_lift: f64,
     /// Median final commanded grip (N).
     pub median_final_n: f64,
     /// Median of final grip / minimum grip needed.
@@ -607,6 +673,11 @@ pub fn summarise(on: &[Outcome], off: &[Outcome], min_grip: &[f64]) -> Cell {
         n,
         drops: on.iter().filter(|o| o.dropped).count(),
         mean_increases: on.iter().map(|o| o.increases as f64).sum::<f64>() / n.max(1) as f64,
+        mean_increases_before_lift: on
+            .iter()
+            .map(|o| o.raise_times.iter().filter(|&&t| t < T_LIFT_S).count() as f64)
+            .sum::<f64>()
+            / n.max(1) as f64,
         median_final_n: median(on.iter().map(|o| o.final_grip_n).collect()),
         median_final_over_min: median(
             on.iter()
@@ -617,4 +688,125 @@ pub fn summarise(on: &[Outcome], off: &[Outcome], min_grip: &[f64]) -> Cell {
         prevented,
         drops_off,
     }
+}
+
+/// Stream of the training trials' own draws (grip margin, teacher, controller step).
+const TRAINING_STREAM: u64 = 0x7EAC_0000;
+
+/// Settings of the simulated closed-loop training trials.
+#[derive(Clone, Copy, Debug)]
+pub struct TrainingConfig {
+    /// Frame rate of the model to train (mHz).
+    pub rate_mhz: u32,
+    /// A frame is labelled unstable when the object is in incipient slip, gross slip or lost
+    /// at any frame up to this far ahead (s): the controller needs the flag before the slip,
+    /// since a slip reaches gross slip and the drop within a few frames.
+    pub lead_s: f64,
+    /// Frames kept after the object is lost (the drop itself is easy to see and does not help
+    /// the controller).
+    pub after_loss: usize,
+}
+
+impl Default for TrainingConfig {
+    fn default() -> Self {
+        TrainingConfig {
+            rate_mhz: 16_700,
+            lead_s: 0.3,
+            after_loss: 3,
+        }
+    }
+}
+
+/// Labelled sequences from `count` simulated closed-loop trials of `seed` (the four situations
+/// in turn), for training a model to flag slip ahead in the situations the controller faces.
+/// Each trial runs with the [`FlagSource::Teacher`]: the oracle's flags acted on with a drawn
+/// probability (0 in a fifth of the trials) and a drawn grip step (10–30 % of the initial
+/// grip); a quarter of the trials start with a grip 1.2–2× the light one, so most of those
+/// hold. Labels come from the physics ([`FrameRecord::unstable`] within
+/// [`TrainingConfig::lead_s`]), not from a lead before a drop step. Sequences start at grasp
+/// start, one per contact channel plus one channel without contact (all stable), as the
+/// firmware runs every channel. Use seeds other than the closed-loop report's.
+pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<Sequence> {
+    use crate::labels::ChannelSequence;
+    use crate::trial::{Outcome as TrialOutcome, Stability};
+    let period_s = 1000.0 / cfg.rate_mhz as f64;
+    let lead = (cfg.lead_s / period_s).round() as usize;
+    let mut out = Vec::new();
+    for i in 0..count as u64 {
+        let situation = Situation::ALL[(i % 4) as usize];
+        let mut sc = Scenario::draw(seed, i, situation);
+        let mut rng = trial_rng(seed, TRAINING_STREAM + i);
+        if rng.random_bool(0.25) {
+            sc.initial_grip_n *= uniform(&mut rng, 1.2, 2.0);
+        }
+        let act_prob = if rng.random_bool(0.2) {
+            0.0
+        } else {
+            uniform(&mut rng, 0.3, 1.0)
+        };
+        let ctl = ControllerConfig {
+            step_fraction: uniform(&mut rng, 0.1, 0.3),
+            rate_mhz: cfg.rate_mhz,
+            decision: None,
+            settle_s: 0.0,
+        };
+        let o = run_trial(
+            &sc,
+            FlagSource::Teacher { act_prob },
+            &ctl,
+            None,
+            seed.wrapping_mul(1_000_003).wrapping_add(i),
+        );
+        let len = o
+            .frames
+            .iter()
+            .position(|f| f.lost)
+            .map_or(o.frames.len(), |k| (k + cfg.after_loss).min(o.frames.len()));
+        let frames = &o.frames[..len];
+        let truth: Vec<bool> = (0..len)
+            .map(|k| {
+                frames[k..(k + lead + 1).min(len)]
+                    .iter()
+                    .any(FrameRecord::unstable)
+            })
+            .collect();
+        let lift = frames.iter().position(|f| f.t >= T_LIFT_S);
+        let free: Vec<usize> = (0..Profile::HAND.channels)
+            .filter(|c| !sc.p.contacts.contains(c))
+            .collect();
+        let mut channels = sc.p.contacts.clone();
+        if !free.is_empty() {
+            channels.push(free[rng.random_range(0..free.len())]);
+        }
+        for c in channels {
+            let contact = sc.p.contacts.contains(&c);
+            out.push(Sequence {
+                cs: ChannelSequence {
+                    trial_id: format!("closed-loop-{}-{seed}-{i}", situation.name()),
+                    channel: c,
+                    samples: frames.iter().map(|f| f.model_units[c] as f32).collect(),
+                    labels: truth
+                        .iter()
+                        .map(|&u| {
+                            if contact && u {
+                                Stability::Unstable
+                            } else {
+                                Stability::Stable
+                            }
+                        })
+                        .collect(),
+                    // The labels come from the physics, not from a lead before a drop step.
+                    drop_index: None,
+                    outcome: if o.dropped {
+                        TrialOutcome::Failure
+                    } else {
+                        TrialOutcome::Success
+                    },
+                },
+                lift,
+                rate_hz: cfg.rate_mhz as f32 / 1000.0,
+            });
+        }
+    }
+    out
 }

@@ -50,13 +50,19 @@ pub fn sequences_of(trials: &[Trial], cfg: &LabelConfig) -> Vec<Sequence> {
     out
 }
 
-/// Simulated 16-pad force trials at 16.7 Hz (trial `i` of `seed`), as sequences.
-pub fn sim_force_sequences(seed: u64, count: usize, failure_share: f64) -> Vec<Sequence> {
-    let cfg = ForceSimConfig::at_rate(16.7);
+/// Simulated 16-pad force trials at `rate_hz` (trial `i` of `seed`), as sequences (labels with
+/// the paper's durations, [`LabelConfig::scaled_to`]).
+pub fn sim_force_sequences(
+    seed: u64,
+    count: usize,
+    failure_share: f64,
+    rate_hz: f32,
+) -> Vec<Sequence> {
+    let cfg = ForceSimConfig::at_rate(rate_hz as f64);
     let trials: Vec<Trial> = (0..count)
         .map(|i| sim_force(seed, i as u64, None, failure_share, &cfg))
         .collect();
-    sequences_of(&trials, &LabelConfig::default())
+    sequences_of(&trials, &LabelConfig::default().scaled_to(rate_hz))
 }
 
 /// Simulated suction trials at 71 Hz (4 cups), 160-step sequences from attach with the
@@ -69,14 +75,20 @@ pub fn sim_suction_sequences(seed: u64, count: usize, failure_share: f64) -> Vec
     sequences_of(&trials, &LabelConfig::default())
 }
 
-/// Header settings of a hand-force model at 16.7 Hz (0…32,768 mN → Q1.15).
-pub fn force_config(variant: Variant, force_diff: bool, hidden: u16, name: &str) -> ModelConfig {
+/// Header settings of a hand-force model at `rate_mhz` (0…32,768 mN → Q1.15).
+pub fn force_config(
+    variant: Variant,
+    force_diff: bool,
+    hidden: u16,
+    name: &str,
+    rate_mhz: u32,
+) -> ModelConfig {
     base_config(
         variant,
         force_diff,
         hidden,
         name,
-        16_700,
+        rate_mhz,
         InputUnit::MilliNewton,
         0,
         32_768,

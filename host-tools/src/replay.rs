@@ -30,6 +30,15 @@ pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
     } else {
         "hand-force"
     };
+    let mut v = shipped_blobs(dir);
+    if v.is_empty() {
+        v.push(golden_model_path());
+    }
+    v
+}
+
+/// The blobs (`*.bin`, sorted) of `models/<dir>/` in this repository; empty if there are none.
+pub fn shipped_blobs(dir: &str) -> Vec<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../models")
         .join(dir);
@@ -41,9 +50,6 @@ pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
         })
         .unwrap_or_default();
     v.sort();
-    if v.is_empty() {
-        v.push(golden_model_path());
-    }
     v
 }
 

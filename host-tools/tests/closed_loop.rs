@@ -10,6 +10,7 @@ const CTL: ControllerConfig = ControllerConfig {
     step_fraction: 0.2,
     rate_mhz: 16_700,
     decision: None,
+    settle_s: 0.0,
 };
 
 #[test]
@@ -24,7 +25,7 @@ fn off_drops_and_oracle_prevents() {
             assert_eq!(off.final_grip_n, sc.initial_grip_n);
             if off.dropped {
                 off_here += 1;
-                let on = run_trial(&sc, FlagSource::Oracle, &CTL, None, 1);
+                let on = run_trial(&sc, FlagSource::Oracle { delay_frames: 0 }, &CTL, None, 1);
                 if !on.dropped {
                     prevented += 1;
                     assert!(on.increases > 0);
@@ -48,7 +49,7 @@ fn reaction_comes_one_frame_after_the_slip() {
     let mut checked = 0;
     for i in 0..6 {
         let sc = Scenario::draw(3, i, Situation::Heavy);
-        let o = run_trial(&sc, FlagSource::Oracle, &CTL, None, 1);
+        let o = run_trial(&sc, FlagSource::Oracle { delay_frames: 0 }, &CTL, None, 1);
         let off = run_trial(&sc, FlagSource::Off, &CTL, None, 1);
         let Some(&first) = o.raise_times.first() else {
             continue;
@@ -77,6 +78,16 @@ fn reaction_comes_one_frame_after_the_slip() {
             lag >= period && lag <= 2.0 * period + 0.003,
             "trial {i}: raise {first:.4} s, slip {t_slip:.4} s"
         );
+        // The oracle two frames late raises exactly two periods later (the grip has not moved
+        // before its first raise, so the slip is the same).
+        let late = run_trial(&sc, FlagSource::Oracle { delay_frames: 2 }, &CTL, None, 1);
+        let Some(&late_first) = late.raise_times.first() else {
+            // Dropped before the late flag arrived (flags of a lost object do not count).
+            assert!(late.dropped, "trial {i}");
+            continue;
+        };
+        let d = late_first - first;
+        assert!((d - 2.0 * period).abs() < 0.0015, "trial {i}: {d:.4} s");
         let _ = off;
         checked += 1;
     }
@@ -124,4 +135,133 @@ fn firmware_in_the_loop() {
     let o = run_trial(&sc, FlagSource::Model(blob.as_bytes()), &strict, None, 1);
     assert_eq!((o.unstable_frames, o.increases), (0, 0));
     assert_eq!(o.dropped, off.dropped);
+}
+
+#[test]
+fn recorded_frames_are_what_the_model_sees() {
+    // The frames recorded for training are the front end's output in model units (mN), one per
+    // period from grasp start on, and match the pad physics.
+    let sc = Scenario::draw(5, 1, Situation::SuddenWeight);
+    let o = run_trial(&sc, FlagSource::Off, &CTL, None, 1);
+    let period = 1.0 / 16.7;
+    assert!((o.frames[0].t - slipguard_host::closed_loop::T_CONTACT_S).abs() <= period);
+    assert!((126..=129).contains(&o.frames.len()), "{}", o.frames.len());
+    let ch = sc.p.contacts[0];
+    let grip_mn = 1000.0 * sc.initial_grip_n * sc.p.gains[ch];
+    // Before the lift the pad reads its share of the grip (shear cross-talk is zero then).
+    let f = o.frames.iter().find(|f| f.t > 1.2).unwrap();
+    let expect = sc.p.shares[0] * grip_mn;
+    assert!(
+        (f.model_units[ch] as f64 - expect).abs() < 0.05 * expect + 30.0,
+        "{} vs {expect}",
+        f.model_units[ch]
+    );
+    // Channels without contact read about zero.
+    let free = (0..16).find(|c| !sc.p.contacts.contains(c)).unwrap();
+    assert!(o.frames.iter().all(|f| f.model_units[free].abs() < 60));
+}
+
+#[test]
+fn training_sequences_are_labelled_by_the_physics() {
+    use slipguard_host::closed_loop::training_sequences;
+    use slipguard_host::trial::{Outcome, Stability};
+    let cfg = slipguard_host::closed_loop::TrainingConfig::default();
+    let seqs = training_sequences(900, 8, &cfg);
+    // Same seed, same sequences.
+    assert_eq!(seqs.len(), training_sequences(900, 8, &cfg).len());
+    assert_eq!(seqs[0].cs, training_sequences(900, 1, &cfg)[0].cs);
+    let mut trials = std::collections::BTreeMap::<&str, Vec<_>>::new();
+    for s in &seqs {
+        assert_eq!(s.cs.samples.len(), s.cs.labels.len());
+        assert!(s.cs.drop_index.is_none());
+        trials.entry(s.cs.trial_id.as_str()).or_default().push(s);
+    }
+    assert_eq!(trials.len(), 8);
+    let (mut dropped, mut unstable_steps) = (0, 0);
+    for (id, chans) in &trials {
+        // One channel without contact, always stable, reading about zero.
+        let free: Vec<_> = chans
+            .iter()
+            .filter(|s| s.cs.samples.iter().all(|&x| x.abs() < 60.0))
+            .collect();
+        assert_eq!(free.len(), 1, "{id}");
+        assert!(free[0].cs.labels.iter().all(|&l| l == Stability::Stable));
+        // The contact channels share one label track (the object's slip state).
+        let contact: Vec<_> = chans
+            .iter()
+            .filter(|s| !std::ptr::eq(**s, *free[0]))
+            .collect();
+        assert!(!contact.is_empty());
+        for s in &contact {
+            assert_eq!(s.cs.labels, contact[0].cs.labels, "{id}");
+        }
+        let labels = &contact[0].cs.labels;
+        // Nothing slips before the lift: labels before it are stable, except the lead
+        // (0.3 s = 5 frames) before a slip right after the lift.
+        let lift = contact[0].lift.expect("lift inside the trial");
+        assert!(
+            labels[..lift - 5].iter().all(|&l| l == Stability::Stable),
+            "{id}"
+        );
+        unstable_steps += labels.iter().filter(|&&l| l == Stability::Unstable).count();
+        if contact[0].cs.outcome == Outcome::Failure {
+            dropped += 1;
+            // A dropped object is unstable at the end, and the pads read about zero.
+            assert_eq!(*labels.last().unwrap(), Stability::Unstable, "{id}");
+        }
+    }
+    assert!(dropped >= 1 && unstable_steps > 0);
+}
+
+#[test]
+fn shipped_40hz_model_in_the_loop() {
+    // The shipped closed-loop model (models/hand-force-40hz, trained on closed-loop seeds 101 and
+    // 102, threshold picked on seed 2) on seed 3, which neither saw. With prediction off every
+    // light grasp drops; with the model most are kept at a grip of the order of the minimum,
+    // partly thanks to flags right after grasp start (a pre-squeeze). With those ignored (the
+    // controller settles 0.5 s) the slip predictions alone still keep some (docs/integration.md
+    // has the seed-1 report: 188/200 and 85/200).
+    let blobs = slipguard_host::replay::shipped_blobs("hand-force-40hz");
+    let blob = slipguard_host::replay::load_blob(&blobs[0]).unwrap();
+    let ctl = ControllerConfig {
+        rate_mhz: 40_000,
+        ..CTL
+    };
+    let settled = ControllerConfig {
+        settle_s: 0.5,
+        ..ctl
+    };
+    let (mut drops_off, mut prevented, mut prevented_settled) = (0, 0, 0);
+    let mut ratio = Vec::new();
+    for sit in Situation::ALL {
+        for i in 0..6 {
+            let sc = Scenario::draw(3, i, sit);
+            let off = run_trial(&sc, FlagSource::Off, &ctl, None, 1);
+            let on = run_trial(&sc, FlagSource::Model(blob.as_bytes()), &ctl, None, 1);
+            let on_settled = run_trial(&sc, FlagSource::Model(blob.as_bytes()), &settled, None, 1);
+            assert_eq!(on.fault_frames, 0);
+            assert!(on_settled.raise_times.iter().all(|&t| t >= 0.8));
+            if off.dropped {
+                drops_off += 1;
+                prevented += usize::from(!on.dropped);
+                prevented_settled += usize::from(!on_settled.dropped);
+            }
+            ratio.push(on.final_grip_n / min_grip_needed(&sc, &ctl));
+        }
+    }
+    ratio.sort_by(f64::total_cmp);
+    let median = ratio[ratio.len() / 2];
+    assert!(drops_off >= 20, "{drops_off}");
+    assert!(
+        4 * prevented >= 3 * drops_off,
+        "prevented {prevented} of {drops_off}"
+    );
+    assert!(
+        5 * prevented_settled >= drops_off,
+        "prevented {prevented_settled} of {drops_off} with the start-up flags ignored"
+    );
+    assert!(
+        median < 2.0,
+        "final grip / minimum needed, median {median:.2}"
+    );
 }

@@ -13,12 +13,13 @@ use slipguard_host::closed_loop::{
     ControllerConfig, FlagSource, Outcome, Scenario, Situation, min_grip_needed, run_trial,
     summarise,
 };
-use slipguard_host::replay::{default_models, load_blob};
+use slipguard_host::replay::{default_models, load_blob, shipped_blobs};
 
 #[derive(Debug, Parser)]
 pub struct Args {
-    /// Model blob(s) to compare (repeatable). Default: models/hand-force/*.bin, else the golden
-    /// untrained blob.
+    /// Model blob(s) to compare (repeatable). Default: the shipped hand models,
+    /// models/hand-force/*.bin (16.7 Hz) and models/hand-force-40hz/*.bin (40 Hz), else the
+    /// golden untrained blob.
     #[arg(long)]
     pub model: Vec<PathBuf>,
     /// Trials per situation.
@@ -30,9 +31,14 @@ pub struct Args {
     /// Grip step per unstable frame, as a fraction of the initial grip.
     #[arg(long, default_value_t = 0.2)]
     pub step: f64,
-    /// Also run a perfect predictor (true load ratio ≥ 0.85) with the same latency.
+    /// Also run a perfect detector (true load ratio ≥ 0.85) with the same latency, at each
+    /// model's frame rate.
     #[arg(long)]
     pub oracle: bool,
+    /// Also run the perfect detector this many frames late (repeatable, with --oracle): the best
+    /// a detector that needs that long to see the slip could do.
+    #[arg(long, requires = "oracle")]
+    pub oracle_delay: Vec<usize>,
     /// Write closed-loop.md and one PNG per situation here.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -43,6 +49,9 @@ pub struct Args {
     /// command); default: the blob's.
     #[arg(long)]
     pub threshold: Option<f64>,
+    /// The controller ignores flags for this long after grasp start (ms).
+    #[arg(long, default_value_t = 0)]
+    pub settle_ms: u32,
     /// Consecutive unstable frames before the flag rises, with `--threshold`.
     #[arg(long, default_value_t = 1, requires = "threshold")]
     pub raise_after: u8,
@@ -54,7 +63,10 @@ pub struct Args {
 struct Source {
     name: String,
     blob: Option<slipguard_core::blob::AlignedBlob>,
-    oracle: bool,
+    /// `Some(delay in frames)`: the perfect detector.
+    oracle: Option<usize>,
+    /// Frame rate (mHz): the model's, for the oracle the rate it stands beside.
+    rate_mhz: u32,
 }
 
 fn run_all(
@@ -83,35 +95,58 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let models = if a.model.is_empty() {
-        default_models(&Profile::HAND)
+        let mut v = default_models(&Profile::HAND);
+        v.extend(shipped_blobs("hand-force-40hz"));
+        v
     } else {
         a.model.clone()
     };
+    let default_rate = Profile::HAND.default_rate_mhz();
     let mut sources = vec![Source {
         name: "off".into(),
         blob: None,
-        oracle: false,
+        oracle: None,
+        rate_mhz: default_rate,
     }];
-    let mut rate_mhz = Profile::HAND.default_rate_mhz();
+    let mut rates = Vec::new();
     for m in &models {
         let blob = load_blob(m)?;
-        if let Ok(model) = Model::from_bytes(blob.as_bytes()) {
-            rate_mhz = model.config().sample_rate_mhz;
+        // A blob that does not parse still runs (the firmware answers with fault frames).
+        let rate_mhz = Model::from_bytes(blob.as_bytes())
+            .map_or(default_rate, |model| model.config().sample_rate_mhz);
+        if !rates.contains(&rate_mhz) {
+            rates.push(rate_mhz);
         }
         sources.push(Source {
             name: m.file_name().map_or(m.display().to_string(), |s| {
                 s.to_string_lossy().into_owned()
             }),
             blob: Some(blob),
-            oracle: false,
+            oracle: None,
+            rate_mhz,
         });
     }
+    if rates.is_empty() {
+        rates.push(default_rate);
+    }
     if a.oracle {
-        sources.push(Source {
-            name: "oracle".into(),
-            blob: None,
-            oracle: true,
-        });
+        for &rate_mhz in &rates {
+            for delay in std::iter::once(0).chain(a.oracle_delay.iter().copied()) {
+                let mut name = "oracle".to_string();
+                if rates.len() > 1 {
+                    name += &format!(" {} Hz", rate_mhz as f64 / 1000.0);
+                }
+                if delay > 0 {
+                    name += &format!(", {delay} frame{} late", if delay > 1 { "s" } else { "" });
+                }
+                sources.push(Source {
+                    name,
+                    blob: None,
+                    oracle: Some(delay),
+                    rate_mhz,
+                });
+            }
+        }
     }
     let decision = match a.threshold {
         Some(t) if t > 0.0 && t < 1.0 && a.raise_after >= 1 && a.clear_after >= 1 => {
@@ -124,18 +159,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let ctl = ControllerConfig {
         step_fraction: a.step,
-        rate_mhz,
+        rate_mhz: default_rate,
         decision,
+        settle_s: a.settle_ms as f64 / 1000.0,
     };
     let mut md = String::new();
     let _ = writeln!(
         md,
         "Closed loop: {} trials per situation, seed {}, grip step {:.0} % of the initial grip, \
-         frame rate {} Hz, latency one frame + 0.61 ms.\n",
+         frame rate {} Hz (each model's own), latency one frame + 0.61 ms.\n",
         a.trials,
         a.seed,
         100.0 * a.step,
-        rate_mhz as f64 / 1000.0
+        rates
+            .iter()
+            .map(|r| format!("{}", *r as f64 / 1000.0))
+            .collect::<Vec<_>>()
+            .join(" / ")
     );
     if let Some((t, r, c)) = decision {
         let _ = writeln!(
@@ -147,7 +187,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let _ = writeln!(
         md,
-        "| situation | prediction | drops | prevented (of drops off) | grip increases / trial | final grip (median, N) | final / minimum needed (median) |"
+        "| situation | prediction | drops | prevented (of drops off) | grip increases / trial (before the lift) | final grip (median, N) | final / minimum needed (median) |"
     );
     let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|");
     for sit in Situation::ALL {
@@ -159,8 +199,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         for s in &sources {
             let src = match (&s.blob, s.oracle) {
                 (Some(b), _) => FlagSource::Model(b.as_bytes()),
-                (None, true) => FlagSource::Oracle,
+                (None, Some(delay_frames)) => FlagSource::Oracle { delay_frames },
                 _ => FlagSource::Off,
+            };
+            let ctl = ControllerConfig {
+                rate_mhz: s.rate_mhz,
+                ..ctl
             };
             results.push((
                 s.name.clone(),
@@ -172,7 +216,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             let c = summarise(r, &off, &min);
             let _ = writeln!(
                 md,
-                "| {} | {} | {}/{} ({:.0} %) | {} | {:.1} | {:.2} | {:.2} |",
+                "| {} | {} | {}/{} ({:.0} %) | {} | {:.1} ({:.1}) | {:.2} | {:.2} |",
                 sit.name(),
                 name,
                 c.drops,
@@ -184,6 +228,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     format!("{}/{}", c.prevented, c.drops_off)
                 },
                 c.mean_increases,
+                c.mean_increases_before_lift,
                 c.median_final_n,
                 c.median_final_over_min
             );

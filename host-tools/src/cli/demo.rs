@@ -119,7 +119,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &real,
         plots,
     )?);
-    let sf = sim_force_sequences(a.sim_seed, a.sim_count, 0.3);
+    let sf = sim_force_sequences(a.sim_seed, a.sim_count, 0.3, 16.7);
     rows.push(run_blob(
         "hand-force",
         &hand,

@@ -281,7 +281,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         })
     };
     let sim_f = if needs(InputUnit::MilliNewton) {
-        sim_force_sequences(a.sim_seed, a.sim_force, 0.3)
+        sim_force_sequences(a.sim_seed, a.sim_force, 0.3, 16.7)
     } else {
         Vec::new()
     };

@@ -8,6 +8,7 @@ use slipguard_core::blob::Variant;
 use slipguard_core::decision::DecisionConfig;
 use slipguard_core::float::FloatModel;
 use slipguard_host::checkpoint::{self, Checkpoint};
+use slipguard_host::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
 use slipguard_host::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
@@ -81,6 +82,25 @@ pub struct Args {
     /// Seed of the simulated training trials (pre-training uses it, mixing it + 1).
     #[arg(long, default_value_t = 11)]
     pub sim_seed: u64,
+    /// Simulated closed-loop trials (the four DoraHand situations, labelled with the true slip
+    /// state, `slipguard_host::closed_loop::training_sequences`) added to the pre-training.
+    #[arg(long, default_value_t = 0)]
+    pub closed_loop_pretrain: usize,
+    /// Simulated closed-loop trials mixed into the (fine-)tuning set (split by trial for early
+    /// stopping like the real trials; the decision is still tuned on real trials only).
+    #[arg(long, default_value_t = 0)]
+    pub closed_loop_mix: usize,
+    /// Seed of the closed-loop training trials (pre-training uses it, mixing it + 1); keep it
+    /// apart from the seeds `slipguard closed-loop` reports on.
+    #[arg(long, default_value_t = 101)]
+    pub closed_loop_seed: u64,
+    /// Model frame rate (Hz) of the force sensor: 16.7 (the paper's, real trials) or 40 (the
+    /// hand profile's fast rate, for closed-loop use; simulated trials only).
+    #[arg(long, default_value_t = 16.7)]
+    pub rate_hz: f32,
+    /// Closed-loop training labels: unstable when the object slips within this many seconds.
+    #[arg(long, default_value_t = 0.3)]
+    pub closed_loop_lead: f64,
     /// Cross-validation by trial with this many folds (0 = train one model on every trial).
     #[arg(long, default_value_t = 0)]
     pub cv: usize,
@@ -236,17 +256,40 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let run = Run { a: &a, tc, command };
     let t_all = Instant::now();
     // Data.
+    let cl_cfg = ClosedLoopTraining {
+        rate_mhz: (a.rate_hz * 1000.0).round() as u32,
+        lead_s: a.closed_loop_lead,
+        ..Default::default()
+    };
     let (real, sim_pre, sim_mix) = match a.sensor {
         Sensor::Force => {
-            let (path, real) = load_real(a.path.as_deref())?;
-            eprintln!(
-                "real: {} sequences from {} ({} failure sequences)",
-                real.len(),
-                path.display(),
-                real.iter().filter(|s| s.failure()).count()
-            );
-            let pre = sim_force_sequences(a.sim_seed, a.sim_pretrain, a.sim_failure_share);
-            let mix = sim_force_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share);
+            let real = if cl_cfg.rate_mhz == 16_700 {
+                let (path, real) = load_real(a.path.as_deref())?;
+                eprintln!(
+                    "real: {} sequences from {} ({} failure sequences)",
+                    real.len(),
+                    path.display(),
+                    real.iter().filter(|s| s.failure()).count()
+                );
+                real
+            } else {
+                anyhow::ensure!(
+                    cl_cfg.rate_mhz == 40_000,
+                    "--rate-hz: the hand profile runs 16.7 or 40 Hz"
+                );
+                anyhow::ensure!(a.cv == 0, "--cv needs real trials, which are 16.7 Hz only");
+                eprintln!("40 Hz: simulated trials only (the real trials are 16.7 Hz)");
+                Vec::new()
+            };
+            let mut pre =
+                sim_force_sequences(a.sim_seed, a.sim_pretrain, a.sim_failure_share, a.rate_hz);
+            pre.extend(training_sequences(
+                a.closed_loop_seed,
+                a.closed_loop_pretrain,
+                &cl_cfg,
+            ));
+            let mix =
+                sim_force_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share, a.rate_hz);
             (real, pre, mix)
         }
         Sensor::Suction => {
@@ -258,11 +301,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             (Vec::new(), Vec::new(), mix)
         }
     };
-    if !sim_pre.is_empty() || !sim_mix.is_empty() {
+    anyhow::ensure!(
+        a.sensor == Sensor::Force || a.closed_loop_pretrain + a.closed_loop_mix == 0,
+        "--closed-loop-pretrain/--closed-loop-mix simulate the hand's force pads: use --sensor force"
+    );
+    let cl_mix = training_sequences(a.closed_loop_seed + 1, a.closed_loop_mix, &cl_cfg);
+    if !sim_pre.is_empty() || !sim_mix.is_empty() || !cl_mix.is_empty() {
         eprintln!(
-            "simulated: {} pre-training and {} mixed sequences",
+            "simulated: {} pre-training and {} mixed sequences, {} closed-loop mixed sequences",
             sim_pre.len(),
-            sim_mix.len()
+            sim_mix.len(),
+            cl_mix.len()
         );
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
@@ -283,7 +332,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             short.to_string()
         });
         let config = match a.sensor {
-            Sensor::Force => ev::force_config(v, a.force_diff, a.hidden, &blob_name),
+            Sensor::Force => {
+                ev::force_config(v, a.force_diff, a.hidden, &blob_name, cl_cfg.rate_mhz)
+            }
             Sensor::Suction => ev::suction_config(v, a.force_diff, a.hidden, &blob_name),
         };
         eprintln!(
@@ -323,13 +374,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .collect();
             let tr_refs: Vec<&ChannelSequence> = train_real.iter().map(|s| &s.cs).collect();
             let (mut tr, val) = split_by_trial(&tr_refs, a.val_share, a.seed + k as u64);
-            let (mut tr_mix, val_mix) = if a.sensor == Sensor::Suction {
+            let (mut tr_mix, val_mix) = if a.sensor == Sensor::Suction || real.is_empty() {
                 split_by_trial(&refs(&sim_mix), a.val_share, a.seed)
             } else {
                 (refs(&sim_mix), Vec::new())
             };
             tr.append(&mut tr_mix);
-            let val: Vec<&ChannelSequence> = val.into_iter().chain(val_mix).collect();
+            let (mut tr_cl, val_cl) = split_by_trial(&refs(&cl_mix), a.val_share, a.seed);
+            tr.append(&mut tr_cl);
+            let val: Vec<&ChannelSequence> = val.into_iter().chain(val_mix).chain(val_cl).collect();
             let init = match &pre {
                 Some(m) => m.clone(),
                 None => init_model(config, a.seed, &tr),
