@@ -349,7 +349,7 @@ pub struct FrameRecord {
 
 impl FrameRecord {
     /// Ground truth of the frame: incipient slip (ρ at or above the stick-slip onset), gross
-    /// slip or loss. This is what the oracle flags, one frame late.
+    /// slip or loss. The oracle flags the first of these (ρ ≥ onset, object not yet lost).
     pub fn unstable(&self) -> bool {
         self.lost || self.gross || self.rho >= RHO_STICK_SLIP
     }

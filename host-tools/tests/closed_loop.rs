@@ -138,7 +138,7 @@ fn firmware_in_the_loop() {
 }
 
 #[test]
-fn recorded_frames_are_what_the_model_sees() {
+fn recorded_frames_match_the_pad_physics() {
     // The frames recorded for training are the front end's output in model units (mN), one per
     // period from grasp start on, and match the pad physics.
     let sc = Scenario::draw(5, 1, Situation::SuddenWeight);
