@@ -298,6 +298,11 @@ pub enum FlagSource<'a> {
     Teacher {
         /// Probability that an unstable frame raises the grip.
         act_prob: f64,
+        /// Rate (per second of grasp) of false-alarm bursts: 1–8 frames flagged unstable while
+        /// nothing slips, so that recordings hold grip raises that follow no slip. A model
+        /// trained without them takes the pad force rising under its own controller's raises
+        /// for slip and keeps flagging, squeezing on to the hand's limit.
+        false_alarm_hz: f64,
     },
 }
 
@@ -315,6 +320,10 @@ pub struct ControllerConfig {
     /// Flags are ignored for this long after grasp start (s): the model's state starts from
     /// zero at grasp start and its first frames are not predictions (0 = act on every flag).
     pub settle_s: f64,
+    /// After a raise, further unstable frames are ignored for this long (s), so that the
+    /// controller waits for its last step to reach the fingers (the actuator's time constant is
+    /// [`ACTUATOR_TAU_S`]) before it steps again (0 = a step on every unstable frame).
+    pub hold_off_s: f64,
 }
 
 /// One sample of the trace (every 10 ms).
@@ -411,11 +420,17 @@ pub fn run_trial(
     let mut rng = trial_rng(seed, 0xC0FF_EE00);
     // The teacher's coin has its own stream so that the sensor noise does not depend on it.
     let mut coin = trial_rng(seed, 0xC0FF_EE01);
-    let (act_prob, oracle_delay) = match source {
-        FlagSource::Teacher { act_prob } => (act_prob, 0),
-        FlagSource::Oracle { delay_frames } => (1.0, delay_frames),
-        _ => (1.0, 0),
+    let (act_prob, oracle_delay, false_alarm_hz) = match source {
+        FlagSource::Teacher {
+            act_prob,
+            false_alarm_hz,
+        } => (act_prob, 0, false_alarm_hz),
+        FlagSource::Oracle { delay_frames } => (1.0, delay_frames, 0.0),
+        _ => (1.0, 0, 0.0),
     };
+    // The teacher's false alarms: their own stream, so that a rate of 0 leaves the rest as is.
+    let mut alarms = trial_rng(seed, 0xC0FF_EE02);
+    let mut alarm_frames = 0u32;
     let mut app = match source {
         FlagSource::Model(blob) => Some(App::new(profile, blob)),
         _ => None,
@@ -454,6 +469,10 @@ pub fn run_trial(
                                 // Flags count from grasp start (the fingers' contact) on.
                                 if grip_override.is_none()
                                     && t >= T_CONTACT_S + ctl.settle_s
+                                    && out
+                                        .raise_times
+                                        .last()
+                                        .is_none_or(|&r| t >= r + ctl.hold_off_s)
                                     && (act_prob >= 1.0 || coin.random_bool(act_prob.max(0.0)))
                                     && contact.t_loss.is_none()
                                     && cmd < MAX_GRIP_N
@@ -521,9 +540,19 @@ pub fn run_trial(
                 FlagSource::Oracle { .. } | FlagSource::Teacher { .. } => {
                     // The frame just recorded is the newest; a late oracle looks `delay` back.
                     let n = out.frames.len();
+                    if false_alarm_hz > 0.0
+                        && t >= T_CONTACT_S
+                        && alarm_frames == 0
+                        && alarms.random_bool((false_alarm_hz * period_s).min(1.0))
+                    {
+                        alarm_frames = alarms.random_range(1..=8);
+                    }
+                    let false_alarm = alarm_frames > 0;
+                    alarm_frames = alarm_frames.saturating_sub(1);
                     let unstable = contact.t_loss.is_none()
-                        && n > oracle_delay
-                        && out.frames[n - 1 - oracle_delay].rho >= RHO_STICK_SLIP;
+                        && (false_alarm
+                            || n > oracle_delay
+                                && out.frames[n - 1 - oracle_delay].rho >= RHO_STICK_SLIP);
                     let f = Frame {
                         seq: input.index as u16,
                         msg: Message::Flags(protocol::Flags {
@@ -694,7 +723,7 @@ pub fn summarise(on: &[Outcome], off: &[Outcome], min_grip: &[f64]) -> Cell {
 const TRAINING_STREAM: u64 = 0x7EAC_0000;
 
 /// Settings of the simulated closed-loop training trials.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct TrainingConfig {
     /// Frame rate of the model to train (mHz).
     pub rate_mhz: u32,
@@ -705,6 +734,16 @@ pub struct TrainingConfig {
     /// Frames kept after the object is lost (the drop itself is easy to see and does not help
     /// the controller).
     pub after_loss: usize,
+    /// Highest rate of the teacher's false-alarm bursts (per s); each trial draws its rate
+    /// uniformly from 0 to this ([`FlagSource::Teacher`]).
+    pub false_alarm_hz: f64,
+    /// A trained model put in the loop instead of the teacher for [`Self::policy_share`] of the
+    /// trials (its threshold drawn from 0.07–0.2), so that the data holds the states its own
+    /// flags lead to: raises after a slip has stopped, and the pad force they make (the
+    /// "dataset aggregation" remedy for a policy trained on a teacher's states only).
+    pub policy: Option<slipguard_core::blob::AlignedBlob>,
+    /// Share of the trials run with [`Self::policy`].
+    pub policy_share: f64,
 }
 
 impl Default for TrainingConfig {
@@ -713,6 +752,9 @@ impl Default for TrainingConfig {
             rate_mhz: 16_700,
             lead_s: 0.3,
             after_loss: 3,
+            false_alarm_hz: 0.0,
+            policy: None,
+            policy_share: 0.5,
         }
     }
 }
@@ -722,7 +764,8 @@ impl Default for TrainingConfig {
 /// Each trial runs with the [`FlagSource::Teacher`]: the oracle's flags acted on with a drawn
 /// probability (0 in a fifth of the trials) and a drawn grip step (10–30 % of the initial
 /// grip); a quarter of the trials start with a grip 1.2–2× the light one, so most of those
-/// hold. Labels come from the physics ([`FrameRecord::unstable`] within
+/// hold. With [`TrainingConfig::false_alarm_hz`] the teacher also raises the grip on false
+/// alarms, so the model learns that a grip rising without slip is stable. Labels come from the physics ([`FrameRecord::unstable`] within
 /// [`TrainingConfig::lead_s`]), not from a lead before a drop step. Sequences start at grasp
 /// start, one per contact channel plus one channel without contact (all stable), as the
 /// firmware runs every channel. Use seeds other than the closed-loop report's.
@@ -744,15 +787,38 @@ pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<
         } else {
             uniform(&mut rng, 0.3, 1.0)
         };
-        let ctl = ControllerConfig {
+        let mut ctl = ControllerConfig {
             step_fraction: uniform(&mut rng, 0.1, 0.3),
             rate_mhz: cfg.rate_mhz,
             decision: None,
             settle_s: 0.0,
+            hold_off_s: 0.0,
+        };
+        // Drawn only when asked for, so that data without false alarms or a policy stays as it
+        // was.
+        let false_alarm_hz = if cfg.false_alarm_hz > 0.0 {
+            uniform(&mut rng, 0.0, cfg.false_alarm_hz)
+        } else {
+            0.0
+        };
+        let policy = match &cfg.policy {
+            Some(blob) if rng.random_bool(cfg.policy_share.clamp(0.0, 1.0)) => {
+                let threshold = uniform(&mut rng, 0.07, 0.2);
+                ctl.decision = Some(((threshold * 32768.0).round() as u16, 1, 1));
+                Some(blob.as_bytes())
+            }
+            _ => None,
+        };
+        let source = match policy {
+            Some(blob) => FlagSource::Model(blob),
+            None => FlagSource::Teacher {
+                act_prob,
+                false_alarm_hz,
+            },
         };
         let o = run_trial(
             &sc,
-            FlagSource::Teacher { act_prob },
+            source,
             &ctl,
             None,
             seed.wrapping_mul(1_000_003).wrapping_add(i),

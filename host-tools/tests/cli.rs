@@ -57,3 +57,51 @@ fn simulate_writes_readable_recordings() {
     assert!(!bad.status.success());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn train_refuses_a_closed_loop_policy_it_cannot_use() {
+    // The golden blob runs at 16.7 Hz: refused for a 40 Hz model, before any training.
+    let golden = slipguard_host::replay::golden_model_path();
+    let out = slipguard()
+        .args([
+            "train",
+            "--rate-hz",
+            "40",
+            "--closed-loop-mix",
+            "4",
+            "--epochs",
+            "1",
+        ])
+        .arg("--closed-loop-policy")
+        .arg(&golden)
+        .args(["--out", "/nonexistent/never-written"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("runs at 16.7 Hz, not the --rate-hz 40 Hz"),
+        "{err}"
+    );
+    // A corrupt blob: the parse error, naming the option.
+    let dir = std::env::temp_dir().join(format!("slipguard-policy-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.bin");
+    let mut b = std::fs::read(&golden).unwrap();
+    b.truncate(100);
+    std::fs::write(&bad, b).unwrap();
+    let out = slipguard()
+        .args(["train", "--closed-loop-mix", "4", "--epochs", "1"])
+        .arg("--closed-loop-policy")
+        .arg(&bad)
+        .args(["--out", "/nonexistent/never-written"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--closed-loop-policy") && err.contains("bad.bin"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -52,6 +52,10 @@ pub struct Args {
     /// The controller ignores flags for this long after grasp start (ms).
     #[arg(long, default_value_t = 0)]
     pub settle_ms: u32,
+    /// After a raise, the controller ignores unstable frames for this long (ms) so that its
+    /// step reaches the fingers before it steps again (0 = a step on every unstable frame).
+    #[arg(long, default_value_t = 0)]
+    pub hold_off_ms: u32,
     /// Consecutive unstable frames before the flag rises, with `--threshold`.
     #[arg(long, default_value_t = 1, requires = "threshold")]
     pub raise_after: u8,
@@ -162,6 +166,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         rate_mhz: default_rate,
         decision,
         settle_s: a.settle_ms as f64 / 1000.0,
+        hold_off_s: a.hold_off_ms as f64 / 1000.0,
     };
     let mut md = String::new();
     let _ = writeln!(

@@ -101,6 +101,19 @@ pub struct Args {
     /// Closed-loop training labels: unstable when the object slips within this many seconds.
     #[arg(long, default_value_t = 0.3)]
     pub closed_loop_lead: f64,
+    /// Closed-loop training trials: the teacher also raises the grip on false alarms, at a rate
+    /// drawn per trial from 0 to this (per s), so the model learns that the pad force rising
+    /// under its controller's raises is not slip (0 = none).
+    #[arg(long, default_value_t = 0.0)]
+    pub closed_loop_false_alarms: f64,
+    /// Closed-loop training trials: put this trained model blob in the loop instead of the
+    /// teacher for --closed-loop-policy-share of the trials, so the data holds the states its
+    /// own flags lead to (labels still come from the physics).
+    #[arg(long)]
+    pub closed_loop_policy: Option<PathBuf>,
+    /// Share of the closed-loop training trials run with --closed-loop-policy.
+    #[arg(long, default_value_t = 0.5)]
+    pub closed_loop_policy_share: f64,
     /// Cross-validation by trial with this many folds (0 = train one model on every trial).
     #[arg(long, default_value_t = 0)]
     pub cv: usize,
@@ -259,6 +272,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let cl_cfg = ClosedLoopTraining {
         rate_mhz: (a.rate_hz * 1000.0).round() as u32,
         lead_s: a.closed_loop_lead,
+        false_alarm_hz: a.closed_loop_false_alarms,
+        policy: match &a.closed_loop_policy {
+            Some(p) => Some(policy_blob(p, (a.rate_hz * 1000.0).round() as u32)?),
+            None => None,
+        },
+        policy_share: a.closed_loop_policy_share,
         ..Default::default()
     };
     let (real, sim_pre, sim_mix) = match a.sensor {
@@ -490,4 +509,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     println!("{}", summary.join("\n"));
     eprintln!("total {:.0} s", t_all.elapsed().as_secs_f64());
     Ok(())
+}
+
+/// The --closed-loop-policy blob, checked: a blob that does not parse would only send fault
+/// frames and one at another rate would see other signals, either giving useless data.
+fn policy_blob(path: &Path, rate_mhz: u32) -> anyhow::Result<slipguard_core::blob::AlignedBlob> {
+    let blob = slipguard_host::replay::load_blob(path)?;
+    let model = slipguard_core::model::Model::from_bytes(blob.as_bytes())
+        .map_err(|e| anyhow::anyhow!("--closed-loop-policy {}: {e}", path.display()))?;
+    let got = model.config().sample_rate_mhz;
+    anyhow::ensure!(
+        got == rate_mhz,
+        "--closed-loop-policy {} runs at {} Hz, not the --rate-hz {} Hz being trained",
+        path.display(),
+        got as f64 / 1000.0,
+        rate_mhz as f64 / 1000.0
+    );
+    Ok(blob)
 }
