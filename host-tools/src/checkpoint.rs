@@ -221,10 +221,16 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> anyhow::Result<Mode
         stft,
         hidden,
         cell_frac_bits: [0, 0],
-        threshold_q15: (thr * 32768.0).round().clamp(1.0, 32767.0) as u16,
+        threshold_q15: threshold_q15(thr),
         raise_after: small(keys::RAISE_AFTER)?,
         clear_after: small(keys::CLEAR_AFTER)?,
     })
+}
+
+/// A p(unstable) threshold in the header's Q0.15 (+1.0 = 32 768), clamped to 1…32 767: the
+/// range a blob's threshold must have to parse (0 would flag everything).
+pub fn threshold_q15(p: f64) -> u16 {
+    (p * 32768.0).round().clamp(1.0, 32767.0) as u16
 }
 
 /// Serialises a checkpoint to safetensors bytes.

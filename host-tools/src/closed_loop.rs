@@ -765,8 +765,9 @@ impl Default for TrainingConfig {
 /// probability (0 in a fifth of the trials) and a drawn grip step (10–30 % of the initial
 /// grip); a quarter of the trials start with a grip 1.2–2× the light one, so most of those
 /// hold. With [`TrainingConfig::false_alarm_hz`] the teacher also raises the grip on false
-/// alarms, so the model learns that a grip rising without slip is stable. Labels come from the physics ([`FrameRecord::unstable`] within
-/// [`TrainingConfig::lead_s`]), not from a lead before a drop step. Sequences start at grasp
+/// alarms; with [`TrainingConfig::policy`] a trained model replaces the teacher in some trials.
+/// Labels come from the physics ([`FrameRecord::unstable`] within [`TrainingConfig::lead_s`]),
+/// not from a lead before a drop step. Sequences start at grasp
 /// start, one per contact channel plus one channel without contact (all stable), as the
 /// firmware runs every channel. Use seeds other than the closed-loop report's.
 pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<Sequence> {
@@ -804,7 +805,7 @@ pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<
         let policy = match &cfg.policy {
             Some(blob) if rng.random_bool(cfg.policy_share.clamp(0.0, 1.0)) => {
                 let threshold = uniform(&mut rng, 0.07, 0.2);
-                ctl.decision = Some(((threshold * 32768.0).round() as u16, 1, 1));
+                ctl.decision = Some((crate::checkpoint::threshold_q15(threshold), 1, 1));
                 Some(blob.as_bytes())
             }
             _ => None,

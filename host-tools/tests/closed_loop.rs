@@ -45,6 +45,39 @@ fn off_drops_and_oracle_prevents() {
 }
 
 #[test]
+fn hold_off_spaces_the_raises() {
+    // The perfect detector flags every frame of a slip, so without a hold-off some raises are
+    // one period apart; with 0.2 s no two raises are closer than that, and the first raise
+    // comes at the same time.
+    let (mut close, mut checked) = (0, 0);
+    for i in 0..6 {
+        let sc = Scenario::draw(3, i, Situation::GradualWeight);
+        let src = FlagSource::Oracle { delay_frames: 0 };
+        let free = run_trial(&sc, src, &CTL, None, 1);
+        let held_ctl = ControllerConfig {
+            hold_off_s: 0.2,
+            ..CTL
+        };
+        let held = run_trial(&sc, src, &held_ctl, None, 1);
+        let gaps = |o: &slipguard_host::closed_loop::Outcome| -> Vec<f64> {
+            o.raise_times.windows(2).map(|w| w[1] - w[0]).collect()
+        };
+        close += gaps(&free).iter().filter(|&&g| g < 0.1).count();
+        assert!(
+            gaps(&held).iter().all(|&g| g >= 0.2 - 1e-9),
+            "{:?}",
+            gaps(&held)
+        );
+        assert_eq!(free.raise_times.first(), held.raise_times.first());
+        checked += usize::from(held.raise_times.len() >= 2);
+    }
+    assert!(
+        close >= 1 && checked >= 1,
+        "{close} close raises, {checked} trials checked"
+    );
+}
+
+#[test]
 fn reaction_comes_one_frame_after_the_slip() {
     let period = 1.0 / 16.7;
     let mut checked = 0;

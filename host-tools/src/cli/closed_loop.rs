@@ -9,6 +9,7 @@ use clap::Parser;
 use plotters::prelude::*;
 use slipguard_app::profile::Profile;
 use slipguard_core::model::Model;
+use slipguard_host::checkpoint::threshold_q15;
 use slipguard_host::closed_loop::{
     ControllerConfig, FlagSource, Outcome, Scenario, Situation, min_grip_needed, run_trial,
     summarise,
@@ -154,7 +155,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let decision = match a.threshold {
         Some(t) if t > 0.0 && t < 1.0 && a.raise_after >= 1 && a.clear_after >= 1 => {
-            Some(((t * 32768.0).round() as u16, a.raise_after, a.clear_after))
+            Some((threshold_q15(t), a.raise_after, a.clear_after))
         }
         Some(t) => anyhow::bail!(
             "--threshold {t} must be in (0, 1) and --raise-after/--clear-after at least 1"

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use slipguard_core::blob::InputUnit;
 use slipguard_core::decision::DecisionConfig;
-use slipguard_host::checkpoint::{self, Checkpoint};
+use slipguard_host::checkpoint::{self, Checkpoint, threshold_q15};
 use slipguard_host::evaluation::{
     Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, plot_prediction, probabilities,
     quantize_model, row_markdown, sim_force_sequences, sim_suction_sequences,
@@ -254,7 +254,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             let c = &mut ck.model.config;
             let before = (c.threshold_q15, c.raise_after, c.clear_after);
             if let Some(t) = a.threshold {
-                c.threshold_q15 = (t * 32768.0).round().clamp(1.0, 32767.0) as u16;
+                c.threshold_q15 = threshold_q15(t);
             }
             if let Some(r) = a.raise_after {
                 c.raise_after = r.max(1);

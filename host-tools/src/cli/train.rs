@@ -7,7 +7,7 @@ use anyhow::Context;
 use slipguard_core::blob::Variant;
 use slipguard_core::decision::DecisionConfig;
 use slipguard_core::float::FloatModel;
-use slipguard_host::checkpoint::{self, Checkpoint};
+use slipguard_host::checkpoint::{self, Checkpoint, threshold_q15};
 use slipguard_host::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
 use slipguard_host::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
@@ -242,7 +242,7 @@ impl Run<'_> {
             d
         } else {
             DecisionConfig {
-                threshold_q15: (self.a.threshold * 32768.0).round().clamp(1.0, 32767.0) as i16,
+                threshold_q15: threshold_q15(self.a.threshold) as i16,
                 raise_after: self.a.raise_after.max(1),
                 clear_after: self.a.clear_after.max(1),
             }
@@ -269,12 +269,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let run = Run { a: &a, tc, command };
     let t_all = Instant::now();
     // Data.
+    let rate_mhz = (a.rate_hz * 1000.0).round() as u32;
     let cl_cfg = ClosedLoopTraining {
-        rate_mhz: (a.rate_hz * 1000.0).round() as u32,
+        rate_mhz,
         lead_s: a.closed_loop_lead,
         false_alarm_hz: a.closed_loop_false_alarms,
         policy: match &a.closed_loop_policy {
-            Some(p) => Some(policy_blob(p, (a.rate_hz * 1000.0).round() as u32)?),
+            Some(p) => Some(policy_blob(p, rate_mhz)?),
             None => None,
         },
         policy_share: a.closed_loop_policy_share,
