@@ -28,8 +28,12 @@ pub const MAX_CHANNELS: usize = 16;
 pub const HEADER_LEN: usize = 4;
 /// Trailing CRC bytes.
 pub const CRC_LEN: usize = 4;
-/// Largest payload (decoded frame, CRC included) of any v1 message.
-pub const MAX_PAYLOAD: usize = 64;
+/// Largest payload (decoded frame, CRC included) of any v1 message: an upload chunk with
+/// [`MAX_CHUNK`] data bytes (header 4 + offset 4 + data + chunk CRC 4 + CRC 4). Below 254, so
+/// COBS adds exactly one byte to every frame.
+pub const MAX_PAYLOAD: usize = HEADER_LEN + 4 + MAX_CHUNK + 4 + CRC_LEN;
+/// Most blob bytes one upload chunk carries.
+pub const MAX_CHUNK: usize = 128;
 /// Largest frame on the wire: COBS of the largest payload plus the 0x00 delimiter.
 pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_PAYLOAD) + 1;
 /// p(unstable) value that means "not predicted" (faulted channel, no model, not running).
@@ -43,6 +47,8 @@ pub mod msg_type {
     pub const FAULT: u8 = 0x02;
     /// Device → controller: a received frame was rejected (bad CRC, unknown type…).
     pub const ERROR: u8 = 0x03;
+    /// Device → controller: one frame of model input per channel (sample stream).
+    pub const SAMPLES: u8 = 0x04;
     /// Controller → device: ping.
     pub const PING: u8 = 0x10;
     /// Controller → device: grasp start (reset channel states, tare, start flagging).
@@ -53,6 +59,16 @@ pub mod msg_type {
     pub const SET_THRESHOLD: u8 = 0x13;
     /// Controller → device: info request.
     pub const INFO: u8 = 0x14;
+    /// Controller → device: the lift starts (a phase mark only).
+    pub const LIFT: u8 = 0x15;
+    /// Controller → device: choose flags, flags + samples or samples.
+    pub const STREAM_MODE: u8 = 0x16;
+    /// Controller → device: start a model upload (size, whole-blob CRC).
+    pub const UPLOAD_BEGIN: u8 = 0x17;
+    /// Controller → device: one chunk of the blob being uploaded.
+    pub const UPLOAD_CHUNK: u8 = 0x18;
+    /// Controller → device: check the uploaded blob and make it the active model.
+    pub const UPLOAD_COMMIT: u8 = 0x19;
     /// Bit set in the type of a reply: reply type = command type | REPLY.
     pub const REPLY: u8 = 0x80;
 }
@@ -95,6 +111,113 @@ impl Flags {
     pub const fn body_len(channels: usize) -> usize {
         14 + 2 * channels
     }
+}
+
+/// Phase-mark bits of a samples frame: the commands handled since the previous frame.
+pub mod mark {
+    /// Grasp start (`grasp_start` of a recording).
+    pub const GRASP_START: u8 = 1 << 0;
+    /// Lift (`lift_start` of a recording).
+    pub const LIFT: u8 = 1 << 1;
+    /// Release.
+    pub const RELEASE: u8 = 1 << 2;
+    /// All bits v1 defines.
+    pub const KNOWN: u8 = GRASP_START | LIFT | RELEASE;
+}
+
+/// Which frames the device streams each model period ([`Command::StreamMode`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum StreamMode {
+    /// Flag frames only (the boot default).
+    #[default]
+    Flags = 0,
+    /// A samples frame then a flag frame.
+    FlagsAndSamples = 1,
+    /// Samples frames only (recording; fault frames still go out).
+    Samples = 2,
+}
+
+impl StreamMode {
+    /// The mode of a wire byte.
+    pub fn from_u8(v: u8) -> Option<Self> {
+        Some(match v {
+            0 => Self::Flags,
+            1 => Self::FlagsAndSamples,
+            2 => Self::Samples,
+            _ => return None,
+        })
+    }
+    /// Whether flag frames go out.
+    pub fn flags(self) -> bool {
+        self != Self::Samples
+    }
+    /// Whether samples frames go out.
+    pub fn samples(self) -> bool {
+        self != Self::Flags
+    }
+}
+
+/// One frame of model input (type 0x04): what the model's front end receives for each channel
+/// in this frame, in the profile's input unit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Samples {
+    /// The frame's sample clock, as in [`Flags::timestamp_us`].
+    pub timestamp_us: u32,
+    /// [`status`] bits, as in the flag frame of the same frame.
+    pub status: u8,
+    /// [`mark`] bits: phase commands handled since the previous frame.
+    pub marks: u8,
+    /// Number of channels N (1..=16); only `value[..N]` is sent.
+    pub channels: u8,
+    /// Unit of `value`: the blob's input-unit code (0 mN, 1 counts = 1/16 ADC count).
+    pub unit: u8,
+    /// Bit c set: channel c is faulted (its value is not fed to the model).
+    pub fault: u16,
+    /// Decimated input per channel after tare and scaling: mN (hand) or 1/16 ADC counts
+    /// (suction), the `raw` argument of the model's step.
+    pub value: [i32; MAX_CHANNELS],
+}
+
+impl Samples {
+    /// Body length for `channels` channels.
+    pub const fn body_len(channels: usize) -> usize {
+        10 + 4 * channels
+    }
+}
+
+/// Upload reply codes (byte 3 of an upload reply body): 0 accepted, else why the command was
+/// refused. Each refusal says what to fix (`docs/protocol.md`).
+pub mod upload_code {
+    /// Accepted.
+    pub const OK: u8 = 0;
+    /// Chunk or commit without an upload in progress: send upload begin.
+    pub const NOT_STARTED: u8 = 1;
+    /// Flagging is armed on a running model: send release first (erasing stalls the CPU).
+    pub const ARMED: u8 = 2;
+    /// Declared size 0, not a multiple of 4 or over the slot (value: largest size).
+    pub const WRONG_SIZE: u8 = 3;
+    /// Chunk at another offset than the next expected one (value: next expected offset).
+    pub const OUT_OF_ORDER: u8 = 4;
+    /// Chunk CRC does not match its data (value: next expected offset).
+    pub const BAD_CHUNK: u8 = 5;
+    /// Chunk runs past the declared size or is not a multiple of 4 bytes (value: next offset).
+    pub const CHUNK_LENGTH: u8 = 6;
+    /// Flash erase, write or read-back failed (detail: 1 erase, 2 write, 3 read-back).
+    pub const FLASH: u8 = 7;
+    /// Commit before every byte arrived (value: bytes received).
+    pub const INCOMPLETE: u8 = 8;
+    /// The whole-blob CRC differs from the one announced (value: CRC of the flash contents).
+    pub const BLOB_CRC: u8 = 9;
+    /// The blob does not parse (detail, value: the blob error as in fault frames).
+    pub const BAD_BLOB: u8 = 10;
+    /// The model's rate is not one the profile runs (value: the model's rate, mHz).
+    pub const RATE_MISMATCH: u8 = 11;
+    /// The model's input unit is not the profile's (value: the model's unit code).
+    pub const UNIT_MISMATCH: u8 = 12;
+    /// This build has no model flash (e.g. a host replay without a flash).
+    pub const UNSUPPORTED: u8 = 13;
 }
 
 /// System fault codes (type 0x02, byte 8).
@@ -156,6 +279,53 @@ pub enum Command {
     },
     /// Answered with [`ReplyBody::Info`].
     Info,
+    /// The lift starts: echoed as [`mark::LIFT`], nothing else changes.
+    Lift,
+    /// Choose the frames streamed per model period.
+    StreamMode(StreamMode),
+    /// Start an upload: erase the inactive model slot.
+    UploadBegin {
+        /// Blob length in bytes.
+        size: u32,
+        /// CRC-32/ISO-HDLC of the whole blob.
+        crc: u32,
+    },
+    /// One chunk of the blob.
+    UploadChunk(Chunk),
+    /// Check the uploaded blob and make it the active model.
+    UploadCommit,
+}
+
+/// One upload chunk: `data[..len]` at byte `offset` of the blob.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Chunk {
+    /// Offset in the blob.
+    pub offset: u32,
+    /// Data bytes used, 1..=[`MAX_CHUNK`].
+    pub len: u8,
+    /// The data (bytes past `len` are 0).
+    pub data: [u8; MAX_CHUNK],
+    /// CRC-32/ISO-HDLC of `data[..len]`, checked again after the write.
+    pub crc: u32,
+}
+
+impl Chunk {
+    /// The chunk of `bytes` (at most [`MAX_CHUNK`], longer input is cut) at `offset`, with its CRC.
+    pub fn new(offset: u32, bytes: &[u8]) -> Self {
+        let n = bytes.len().min(MAX_CHUNK);
+        let mut data = [0u8; MAX_CHUNK];
+        data[..n].copy_from_slice(&bytes[..n]);
+        Self {
+            offset,
+            len: n as u8,
+            data,
+            crc: CRC32.checksum(&bytes[..n]),
+        }
+    }
+    /// The data bytes.
+    pub fn bytes(&self) -> &[u8] {
+        &self.data[..(self.len as usize).min(MAX_CHUNK)]
+    }
 }
 
 impl Command {
@@ -167,6 +337,11 @@ impl Command {
             Self::Release => msg_type::RELEASE,
             Self::SetThreshold { .. } => msg_type::SET_THRESHOLD,
             Self::Info => msg_type::INFO,
+            Self::Lift => msg_type::LIFT,
+            Self::StreamMode(_) => msg_type::STREAM_MODE,
+            Self::UploadBegin { .. } => msg_type::UPLOAD_BEGIN,
+            Self::UploadChunk(_) => msg_type::UPLOAD_CHUNK,
+            Self::UploadCommit => msg_type::UPLOAD_COMMIT,
         }
     }
 }
@@ -250,6 +425,23 @@ pub enum ReplyBody {
     },
     /// Reply to info.
     Info(Info),
+    /// Reply to lift.
+    Lifted,
+    /// Reply to stream mode: the mode now in force.
+    StreamMode(StreamMode),
+    /// Reply to an upload command (`command` is its type: begin, chunk or commit).
+    Upload {
+        /// Type of the command answered ([`msg_type::UPLOAD_BEGIN`] …).
+        command: u8,
+        /// Outcome ([`upload_code`]).
+        code: u8,
+        /// Code-specific detail (blob error kind, flash step).
+        detail: u8,
+        /// Slot being written (begin, chunk) or made active (commit).
+        slot: u8,
+        /// Code-specific value (next expected offset, CRC, rate…).
+        value: u32,
+    },
 }
 
 impl ReplyBody {
@@ -262,6 +454,9 @@ impl ReplyBody {
                 Self::Released => msg_type::RELEASE,
                 Self::ThresholdSet { .. } => msg_type::SET_THRESHOLD,
                 Self::Info(_) => msg_type::INFO,
+                Self::Lifted => msg_type::LIFT,
+                Self::StreamMode(_) => msg_type::STREAM_MODE,
+                Self::Upload { command, .. } => command & !msg_type::REPLY,
             }
     }
 }
@@ -282,6 +477,8 @@ pub struct Reply {
 pub enum Message {
     /// Flag frame.
     Flags(Flags),
+    /// Samples frame.
+    Samples(Samples),
     /// System fault.
     Fault(Fault),
     /// Rejected incoming frame.
@@ -297,6 +494,7 @@ impl Message {
     pub fn msg_type(&self) -> u8 {
         match self {
             Self::Flags(_) => msg_type::FLAGS,
+            Self::Samples(_) => msg_type::SAMPLES,
             Self::Fault(_) => msg_type::FAULT,
             Self::Error(_) => msg_type::ERROR,
             Self::Command(c) => c.msg_type(),
@@ -451,19 +649,29 @@ impl Reader<'_> {
     }
 }
 
-/// Body length of the fixed-size types; `None` for flags (depends on N) and unknown types.
+/// Body length of the fixed-size types; `None` for flags, samples (N), upload chunks (data
+/// length) and unknown types.
 fn fixed_body_len(t: u8) -> Option<usize> {
     use msg_type::*;
     Some(match t {
         FAULT => 10,
         ERROR => 4,
         PING => 4,
-        GRASP_START | RELEASE | INFO => 0,
+        GRASP_START | RELEASE | INFO | LIFT | UPLOAD_COMMIT => 0,
         SET_THRESHOLD => 4,
+        STREAM_MODE => 1,
+        UPLOAD_BEGIN => 8,
         x if x == REPLY | PING => 7,
-        x if x == REPLY | GRASP_START || x == REPLY | RELEASE => 3,
+        x if x == REPLY | GRASP_START || x == REPLY | RELEASE || x == REPLY | LIFT => 3,
         x if x == REPLY | SET_THRESHOLD => 7,
         x if x == REPLY | INFO => 43,
+        x if x == REPLY | STREAM_MODE => 4,
+        x if x == REPLY | UPLOAD_BEGIN
+            || x == REPLY | UPLOAD_CHUNK
+            || x == REPLY | UPLOAD_COMMIT =>
+        {
+            10
+        }
         _ => return None,
     })
 }
@@ -490,6 +698,18 @@ pub fn encode_payload(frame: &Frame, out: &mut [u8]) -> usize {
                 w.u16(p);
             }
         }
+        Message::Samples(s) => {
+            let n = (s.channels as usize).min(MAX_CHANNELS);
+            w.u32(s.timestamp_us);
+            w.u8(s.status);
+            w.u8(s.marks);
+            w.u8(n as u8);
+            w.u8(s.unit);
+            w.u16(s.fault);
+            for &v in &s.value[..n] {
+                w.put(&v.to_le_bytes());
+            }
+        }
         Message::Fault(f) => {
             w.u32(f.timestamp_us);
             w.u8(f.code);
@@ -503,7 +723,21 @@ pub fn encode_payload(frame: &Frame, out: &mut [u8]) -> usize {
         }
         Message::Command(c) => match *c {
             Command::Ping { token } => w.u32(token),
-            Command::GraspStart | Command::Release | Command::Info => {}
+            Command::GraspStart
+            | Command::Release
+            | Command::Info
+            | Command::Lift
+            | Command::UploadCommit => {}
+            Command::StreamMode(m) => w.u8(m as u8),
+            Command::UploadBegin { size, crc } => {
+                w.u32(size);
+                w.u32(crc);
+            }
+            Command::UploadChunk(c) => {
+                w.u32(c.offset);
+                w.put(c.bytes());
+                w.u32(c.crc);
+            }
             Command::SetThreshold {
                 threshold_q15,
                 raise_after,
@@ -519,7 +753,20 @@ pub fn encode_payload(frame: &Frame, out: &mut [u8]) -> usize {
             w.u8(r.status as u8);
             match r.body {
                 ReplyBody::Pong { token } => w.u32(token),
-                ReplyBody::GraspStarted | ReplyBody::Released => {}
+                ReplyBody::GraspStarted | ReplyBody::Released | ReplyBody::Lifted => {}
+                ReplyBody::StreamMode(m) => w.u8(m as u8),
+                ReplyBody::Upload {
+                    code,
+                    detail,
+                    slot,
+                    value,
+                    ..
+                } => {
+                    w.u8(code);
+                    w.u8(detail);
+                    w.u8(slot);
+                    w.u32(value);
+                }
                 ReplyBody::ThresholdSet {
                     threshold_q15,
                     raise_after,
@@ -632,8 +879,18 @@ pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
         len: body.len() as u8,
     };
     let bad_value = DecodeError::BadValue { msg_type: t };
-    if t == msg_type::FLAGS {
-        if body.len() < Flags::body_len(0) {
+    if t == msg_type::FLAGS || t == msg_type::SAMPLES {
+        // The exact length depends on N, checked once N is read.
+        let min = if t == msg_type::FLAGS {
+            Flags::body_len(0)
+        } else {
+            Samples::body_len(0)
+        };
+        if body.len() < min {
+            return Err(bad_len);
+        }
+    } else if t == msg_type::UPLOAD_CHUNK {
+        if !(4 + 1 + 4..=4 + MAX_CHUNK + 4).contains(&body.len()) {
             return Err(bad_len);
         }
     } else {
@@ -678,6 +935,37 @@ pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
             }
             Message::Flags(f)
         }
+        msg_type::SAMPLES => {
+            let timestamp_us = r.u32();
+            let status = r.u8();
+            let marks = r.u8();
+            let channels = r.u8();
+            let unit = r.u8();
+            let n = channels as usize;
+            if n == 0 || n > MAX_CHANNELS || marks & !mark::KNOWN != 0 {
+                return Err(bad_value);
+            }
+            if body.len() != Samples::body_len(n) {
+                return Err(bad_len);
+            }
+            let mut s = Samples {
+                timestamp_us,
+                status,
+                marks,
+                channels,
+                unit,
+                fault: r.u16(),
+                value: [0; MAX_CHANNELS],
+            };
+            for v in &mut s.value[..n] {
+                *v = r.u32() as i32;
+            }
+            let valid = if n == 16 { u16::MAX } else { (1u16 << n) - 1 };
+            if s.fault & !valid != 0 {
+                return Err(bad_value);
+            }
+            Message::Samples(s)
+        }
         msg_type::FAULT => Message::Fault(Fault {
             timestamp_us: r.u32(),
             code: r.u8(),
@@ -693,6 +981,31 @@ pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
         msg_type::GRASP_START => Message::Command(Command::GraspStart),
         msg_type::RELEASE => Message::Command(Command::Release),
         msg_type::INFO => Message::Command(Command::Info),
+        msg_type::LIFT => Message::Command(Command::Lift),
+        msg_type::UPLOAD_COMMIT => Message::Command(Command::UploadCommit),
+        msg_type::STREAM_MODE => {
+            Message::Command(Command::StreamMode(
+                StreamMode::from_u8(r.u8()).ok_or(bad_value)?,
+            ))
+        }
+        msg_type::UPLOAD_BEGIN => Message::Command(Command::UploadBegin {
+            size: r.u32(),
+            crc: r.u32(),
+        }),
+        msg_type::UPLOAD_CHUNK => {
+            let offset = r.u32();
+            let n = body.len() - 8;
+            let mut data = [0u8; MAX_CHUNK];
+            for d in data.iter_mut().take(n) {
+                *d = r.u8();
+            }
+            Message::Command(Command::UploadChunk(Chunk {
+                offset,
+                len: n as u8,
+                data,
+                crc: r.u32(),
+            }))
+        }
         msg_type::SET_THRESHOLD => {
             let threshold_q15 = r.u16();
             let raise_after = r.u8();
@@ -718,6 +1031,19 @@ pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
                 msg_type::PING => ReplyBody::Pong { token: r.u32() },
                 msg_type::GRASP_START => ReplyBody::GraspStarted,
                 msg_type::RELEASE => ReplyBody::Released,
+                msg_type::LIFT => ReplyBody::Lifted,
+                msg_type::STREAM_MODE => {
+                    ReplyBody::StreamMode(StreamMode::from_u8(r.u8()).ok_or(bad_value)?)
+                }
+                msg_type::UPLOAD_BEGIN | msg_type::UPLOAD_CHUNK | msg_type::UPLOAD_COMMIT => {
+                    ReplyBody::Upload {
+                        command: t & !msg_type::REPLY,
+                        code: r.u8(),
+                        detail: r.u8(),
+                        slot: r.u8(),
+                        value: r.u32(),
+                    }
+                }
                 msg_type::SET_THRESHOLD => ReplyBody::ThresholdSet {
                     threshold_q15: r.u16(),
                     raise_after: r.u8(),
@@ -974,6 +1300,148 @@ mod tests {
         }
     }
 
+    pub(super) fn samples_example() -> Frame {
+        let mut value = [0i32; MAX_CHANNELS];
+        value[..4].copy_from_slice(&[0, 1500, -1240, 39_710]);
+        Frame {
+            seq: 0x0102,
+            msg: Message::Samples(Samples {
+                timestamp_us: 25_000,
+                status: status::ARMED,
+                marks: mark::GRASP_START | mark::LIFT,
+                channels: 4,
+                unit: 0,
+                fault: 0b1000,
+                value,
+            }),
+        }
+    }
+
+    /// Pins the sample stream, phase-mark and upload frames (docs/protocol.md and the C test
+    /// quote them); expected strings computed independently (Python: zlib.crc32, hand COBS).
+    #[test]
+    fn golden_bytes_samples_and_upload() {
+        let cases: [(Frame, &str); 7] = [
+            (
+                samples_example(),
+                "0701040201a861010401030402080101010103dc05010728fbffff1e9b01055235fd1e00",
+            ),
+            (
+                Frame {
+                    seq: 10,
+                    msg: Message::Command(Command::StreamMode(StreamMode::FlagsAndSamples)),
+                },
+                "0401160a0601ae63a0f400",
+            ),
+            (
+                Frame {
+                    seq: 11,
+                    msg: Message::Command(Command::Lift),
+                },
+                "0401150b022903e16000",
+            ),
+            (
+                Frame {
+                    seq: 12,
+                    msg: Message::Command(Command::UploadBegin {
+                        size: 80_444,
+                        crc: 0x89AB_CDEF,
+                    }),
+                },
+                "0401170c043c3a0109efcdab8996de50a600",
+            ),
+            (
+                Frame {
+                    seq: 13,
+                    msg: Message::Command(Command::UploadChunk(Chunk::new(
+                        128,
+                        &[0x53, 0x47, 0x4d, 0x42, 1, 0, 2, 0],
+                    ))),
+                },
+                "0401180d028001010653474d4201020209c777582428bd968500",
+            ),
+            (
+                Frame {
+                    seq: 14,
+                    msg: Message::Command(Command::UploadCommit),
+                },
+                "0401190e05080d8c1400",
+            ),
+            (
+                Frame {
+                    seq: 5,
+                    msg: Message::Reply(Reply {
+                        request_seq: 13,
+                        status: ReplyStatus::BadArgument,
+                        body: ReplyBody::Upload {
+                            command: msg_type::UPLOAD_CHUNK,
+                            code: upload_code::OUT_OF_ORDER,
+                            detail: 0,
+                            slot: 0,
+                            value: 256,
+                        },
+                    }),
+                },
+                "04019805020d0301040101020101050b7aa05600",
+            ),
+        ];
+        for (frame, want) in cases {
+            let w = wire(&frame);
+            assert_eq!(hex(&w), want, "{frame:?}");
+            assert_eq!(decode(&w).unwrap(), frame);
+        }
+    }
+
+    /// Wire bytes per frame and the link load of each stream mode, from the encoder's own
+    /// frame sizes; docs/protocol.md quotes these numbers. 8N1 = 10 bits per byte.
+    #[test]
+    fn sample_stream_bandwidth_at_921600_baud() {
+        fn wire_len(msg: Message) -> usize {
+            let mut out = [0u8; MAX_WIRE];
+            encode(&Frame { seq: 0, msg }, &mut out)
+        }
+        let mut rows = Vec::new();
+        for (channels, rate_mhz) in [(16u8, 40_000u64), (4, 71_000)] {
+            let flags = wire_len(Message::Flags(Flags {
+                timestamp_us: 0,
+                status: 0,
+                channels,
+                unstable: 0,
+                fault: 0,
+                overruns: 0,
+                skipped: 0,
+                p: [0; MAX_CHANNELS],
+            }));
+            let samples = wire_len(Message::Samples(Samples {
+                timestamp_us: 0,
+                status: 0,
+                marks: 0,
+                channels,
+                unit: 0,
+                fault: 0,
+                value: [0; MAX_CHANNELS],
+            }));
+            // Header 4 + body + CRC 4, + 1 COBS overhead byte + 1 delimiter.
+            assert_eq!(flags, 4 + 14 + 2 * channels as usize + 4 + 2);
+            assert_eq!(samples, 4 + 10 + 4 * channels as usize + 4 + 2);
+            // Bits per second ×1000 (rate in mHz), as per mille of 921 600 baud.
+            let per_mille = |bytes: usize| (bytes as u64 * 10 * rate_mhz) / 921_600;
+            rows.push((
+                channels,
+                flags,
+                samples,
+                per_mille(flags),
+                per_mille(samples),
+                per_mille(flags + samples),
+            ));
+        }
+        assert_eq!(
+            rows,
+            [(16, 56, 84, 24, 36, 60), (4, 32, 36, 24, 27, 52)],
+            "update the bandwidth table in docs/protocol.md"
+        );
+    }
+
     fn all_kinds() -> Vec<Frame> {
         let info = Info {
             firmware: [0, 1, 0],
@@ -991,7 +1459,19 @@ mod tests {
             clear_after: 1,
             name: *b"golden-c128\0",
         };
-        let mut v = vec![flags_example()];
+        let mut v = vec![flags_example(), samples_example()];
+        v.push(Frame {
+            seq: 1,
+            msg: Message::Samples(Samples {
+                timestamp_us: u32::MAX,
+                status: 0xFF,
+                marks: mark::KNOWN,
+                channels: 16,
+                unit: 1,
+                fault: 0xFFFF,
+                value: [i32::MIN; MAX_CHANNELS],
+            }),
+        });
         let mut full = [0u16; 16];
         for (i, p) in full.iter_mut().enumerate() {
             *p = (i as u16) * 2000;
@@ -1025,6 +1505,33 @@ mod tests {
             Message::Command(Command::GraspStart),
             Message::Command(Command::Release),
             Message::Command(Command::Info),
+            Message::Command(Command::Lift),
+            Message::Command(Command::StreamMode(StreamMode::Samples)),
+            Message::Command(Command::UploadBegin { size: 1, crc: 2 }),
+            Message::Command(Command::UploadChunk(Chunk::new(0, &[0xAB; MAX_CHUNK]))),
+            Message::Command(Command::UploadChunk(Chunk::new(u32::MAX, &[0]))),
+            Message::Command(Command::UploadCommit),
+            Message::Reply(Reply {
+                request_seq: 9,
+                status: ReplyStatus::Ok,
+                body: ReplyBody::Lifted,
+            }),
+            Message::Reply(Reply {
+                request_seq: 9,
+                status: ReplyStatus::Ok,
+                body: ReplyBody::StreamMode(StreamMode::Flags),
+            }),
+            Message::Reply(Reply {
+                request_seq: 9,
+                status: ReplyStatus::Ok,
+                body: ReplyBody::Upload {
+                    command: msg_type::UPLOAD_COMMIT,
+                    code: upload_code::OK,
+                    detail: 0,
+                    slot: 1,
+                    value: 7,
+                },
+            }),
             Message::Command(Command::SetThreshold {
                 threshold_q15: 32767,
                 raise_after: 255,
@@ -1081,6 +1588,12 @@ mod tests {
         let n = cobs::encode(&payload, &mut out);
         out.truncate(n);
         out
+    }
+
+    fn with_crc_payload(mut payload: Vec<u8>) -> Vec<u8> {
+        let crc = CRC32.checksum(&payload);
+        payload.extend_from_slice(&crc.to_le_bytes());
+        payload
     }
 
     #[test]
@@ -1168,6 +1681,50 @@ mod tests {
             Err(DecodeError::BadValue {
                 msg_type: msg_type::FLAGS
             })
+        );
+        // Samples: unknown mark bit, 0 channels, a fault bit beyond N, one value short.
+        let mut payload = [0u8; MAX_PAYLOAD];
+        let n = encode_payload(&tests::samples_example(), &mut payload);
+        let body = payload[..n - CRC_LEN].to_vec();
+        let bad = |i: usize, v: u8| {
+            let mut b = body.clone();
+            b[i] = v;
+            decode(&with_crc(b))
+        };
+        let samples_value = Err(DecodeError::BadValue {
+            msg_type: msg_type::SAMPLES,
+        });
+        assert_eq!(bad(9, 0b1000), samples_value);
+        assert_eq!(bad(10, 0), samples_value);
+        assert_eq!(bad(12, 0x10), samples_value);
+        assert_eq!(
+            decode(&with_crc(body[..body.len() - 1].to_vec())),
+            Err(DecodeError::BadLength {
+                msg_type: msg_type::SAMPLES,
+                len: 25
+            })
+        );
+        // Stream mode 3; a chunk without data; a chunk over MAX_CHUNK.
+        let v = vec![VERSION, msg_type::STREAM_MODE, 0, 0, 3];
+        assert_eq!(
+            decode(&with_crc(v)),
+            Err(DecodeError::BadValue {
+                msg_type: msg_type::STREAM_MODE
+            })
+        );
+        let v = vec![VERSION, msg_type::UPLOAD_CHUNK, 0, 0, 0, 0, 0, 0, 1, 2, 3, 4];
+        assert_eq!(
+            decode(&with_crc(v)),
+            Err(DecodeError::BadLength {
+                msg_type: msg_type::UPLOAD_CHUNK,
+                len: 8
+            })
+        );
+        let mut v = vec![VERSION, msg_type::UPLOAD_CHUNK, 0, 0];
+        v.extend_from_slice(&[1; 4 + MAX_CHUNK + 1 + 4]);
+        assert_eq!(
+            decode_payload(&with_crc_payload(v)),
+            Err(DecodeError::TooLong)
         );
     }
 
