@@ -9,6 +9,12 @@
 //!   (suction profile) and arms; release disarms (p(unstable) still reported, unstable mask 0).
 //! - Faulted channels (see [`crate::fault`]) are not stepped: p = [`P_NONE`], flag 0, and
 //!   their model state is reset when they recover.
+//! - Stream mode (flags, flags + samples, samples): [`App::emit_samples`] frames the model input
+//!   of every channel, with the phase marks (grasp start, lift, release) of the commands handled
+//!   since the previous frame. Samples and marks go out with or without a model, so a hand
+//!   can be recorded before any model for it exists.
+//! - Model uploads are answered by [`crate::upload::Uploader`]; after one, the board layer
+//!   moves the app onto the new blob with [`App::reload`].
 
 use crate::MAX_CHANNELS;
 use crate::frontend::FrameInput;
@@ -19,7 +25,7 @@ use slipguard_core::decision::DecisionConfig;
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::protocol::{
     Command, DecodeError, Error, Fault, Flags, Frame, Info, Message, P_NONE, Reply, ReplyBody,
-    ReplyStatus, fault_code, status,
+    ReplyStatus, Samples, StreamMode, fault_code, mark, status, upload_code,
 };
 
 /// Firmware version reported by info (major, minor, patch).
@@ -87,6 +93,9 @@ pub struct FrameResult {
     pub fault: u16,
     /// p(unstable) per channel or [`P_NONE`].
     pub p: [u16; MAX_CHANNELS],
+    /// Model input per channel (the profile's unit, after tare): what `Model::step` received,
+    /// or would have for a faulted channel or without a model.
+    pub value: [i32; MAX_CHANNELS],
 }
 
 /// The firmware application over a model borrowed from flash (or a host buffer).
@@ -104,23 +113,29 @@ pub struct App<'m> {
     overruns: u16,
     skipped: u16,
     fault_frames: u32,
+    stream: StreamMode,
+    /// [`mark`] bits of the phase commands handled since the last frame.
+    marks: u8,
+}
+
+/// Checks a blob as the app does at boot: it parses (CRC, version, sizes), its rate is one the
+/// profile runs and its input unit is the profile's.
+pub fn check_model<'m>(profile: &Profile, blob: &'m [u8]) -> Result<Model<'m>, SystemFault> {
+    let m = Model::from_bytes(blob).map_err(SystemFault::BadModel)?;
+    let c = m.config();
+    if !profile.check_rate(c.sample_rate_mhz) {
+        Err(SystemFault::RateMismatch(c.sample_rate_mhz))
+    } else if c.input_unit != profile.unit {
+        Err(SystemFault::UnitMismatch)
+    } else {
+        Ok(m)
+    }
 }
 
 impl<'m> App<'m> {
     /// Validates `blob` against `profile` and starts armed (or in a system fault).
     pub fn new(profile: Profile, blob: &'m [u8]) -> Self {
-        let model = Model::from_bytes(blob)
-            .map_err(SystemFault::BadModel)
-            .and_then(|m| {
-                let c = m.config();
-                if !profile.check_rate(c.sample_rate_mhz) {
-                    Err(SystemFault::RateMismatch(c.sample_rate_mhz))
-                } else if c.input_unit != profile.unit {
-                    Err(SystemFault::UnitMismatch)
-                } else {
-                    Ok(m)
-                }
-            });
+        let model = check_model(&profile, blob);
         Self {
             profile,
             model,
@@ -134,7 +149,29 @@ impl<'m> App<'m> {
             overruns: 0,
             skipped: 0,
             fault_frames: 0,
+            stream: StreamMode::Flags,
+            marks: 0,
         }
+    }
+
+    /// The same app over another blob (after an upload): checked as at boot, every channel's
+    /// state and the tare reset, the decision from the new blob; the sequence numbers, counters,
+    /// stream mode, armed state and pending marks carry over.
+    pub fn reload<'n>(self, blob: &'n [u8]) -> App<'n> {
+        let mut a = App::new(self.profile, blob);
+        a.armed = self.armed;
+        a.last_q4 = self.last_q4;
+        a.seq = self.seq;
+        a.overruns = self.overruns;
+        a.skipped = self.skipped;
+        a.stream = self.stream;
+        a.marks = self.marks;
+        a
+    }
+
+    /// The stream mode in force.
+    pub fn stream_mode(&self) -> StreamMode {
+        self.stream
     }
 
     /// The profile.
@@ -191,7 +228,13 @@ impl<'m> App<'m> {
             unstable: 0,
             fault: input.fault,
             p: [P_NONE; MAX_CHANNELS],
+            value: [0; MAX_CHANNELS],
         };
+        for c in 0..n {
+            r.value[c] = self
+                .profile
+                .to_model_units(input.value_q4[c], self.tare_q4[c]);
+        }
         let Ok(model) = &self.model else {
             return r;
         };
@@ -206,10 +249,7 @@ impl<'m> App<'m> {
                 st.reset();
                 self.stale &= !bit;
             }
-            let raw = self
-                .profile
-                .to_model_units(input.value_q4[c], self.tare_q4[c]);
-            let out = model.step(st, raw);
+            let out = model.step(st, r.value[c]);
             r.p[c] = out.p_unstable_q15.max(0) as u16;
             if out.unstable && self.armed {
                 r.unstable |= bit;
@@ -218,9 +258,46 @@ impl<'m> App<'m> {
         r
     }
 
-    /// Stamps, counts and frames a result: a flag frame, or, in a system fault, a fault frame
-    /// once per second (`None` in between).
+    fn status_bits(&self, late: bool) -> u8 {
+        let mut st = 0;
+        if self.armed {
+            st |= status::ARMED;
+        }
+        if late {
+            st |= status::LATE;
+        }
+        if self.tared {
+            st |= status::TARED;
+        }
+        st
+    }
+
+    /// The samples frame of a result when the stream mode includes samples (with or without a
+    /// model), carrying the phase marks since the previous frame. Call it before [`Self::emit`]
+    /// for the same result (samples go out first; `emit` clears the marks).
+    pub fn emit_samples(&mut self, r: &FrameResult, late: bool) -> Option<Frame> {
+        if !self.stream.samples() {
+            return None;
+        }
+        Some(Frame {
+            seq: self.next_seq(),
+            msg: Message::Samples(Samples {
+                timestamp_us: frame_timestamp_us(r.index, self.rate_mhz()),
+                status: self.status_bits(late),
+                marks: self.marks,
+                channels: self.profile.channels.min(MAX_CHANNELS) as u8,
+                unit: self.profile.unit as u8,
+                fault: r.fault,
+                value: r.value,
+            }),
+        })
+    }
+
+    /// Stamps, counts and frames a result: a flag frame (unless the stream mode is samples
+    /// only), or, in a system fault, a fault frame once per second (`None` in between), in
+    /// every stream mode. Clears the phase marks.
     pub fn emit(&mut self, r: &FrameResult, late: bool) -> Option<Frame> {
+        self.marks = 0;
         if late {
             self.overruns = self.overruns.saturating_add(1);
         }
@@ -244,16 +321,10 @@ impl<'m> App<'m> {
                 }),
             });
         }
-        let mut st = 0;
-        if self.armed {
-            st |= status::ARMED;
+        if !self.stream.flags() {
+            return None;
         }
-        if late {
-            st |= status::LATE;
-        }
-        if self.tared {
-            st |= status::TARED;
-        }
+        let st = self.status_bits(late);
         Some(Frame {
             seq: self.next_seq(),
             msg: Message::Flags(Flags {
@@ -283,10 +354,35 @@ impl<'m> App<'m> {
         }
     }
 
-    /// [`Self::infer`] then [`Self::emit`].
+    /// [`Self::infer`] then [`Self::emit`] (the flag or fault frame only).
     pub fn frame(&mut self, input: &FrameInput, late: bool) -> Option<Frame> {
         let r = self.infer(input);
         self.emit(&r, late)
+    }
+
+    /// [`Self::infer`], [`Self::emit_samples`] and [`Self::emit`]: every frame of one model
+    /// period to `sink`, in wire order.
+    pub fn frames(&mut self, input: &FrameInput, late: bool, mut sink: impl FnMut(&Frame)) {
+        let r = self.infer(input);
+        if let Some(f) = self.emit_samples(&r, late) {
+            sink(&f);
+        }
+        if let Some(f) = self.emit(&r, late) {
+            sink(&f);
+        }
+    }
+
+    /// A reply frame to the command with `request_seq`, numbered in the device's sequence (for
+    /// commands answered outside the app, e.g. uploads).
+    pub fn reply(&mut self, request_seq: u16, status: ReplyStatus, body: ReplyBody) -> Frame {
+        Frame {
+            seq: self.next_seq(),
+            msg: Message::Reply(Reply {
+                request_seq,
+                status,
+                body,
+            }),
+        }
     }
 
     /// Answers one received frame (a command, or a decode error with its [`Error`] reply).
@@ -316,14 +412,7 @@ impl<'m> App<'m> {
             }
         };
         let (status, body) = self.command(cmd);
-        Frame {
-            seq: self.next_seq(),
-            msg: Message::Reply(Reply {
-                request_seq,
-                status,
-                body,
-            }),
-        }
+        self.reply(request_seq, status, body)
     }
 
     fn decision(&self) -> DecisionConfig {
@@ -337,29 +426,55 @@ impl<'m> App<'m> {
         }
     }
 
+    /// The part of grasp start that the sample stream sees, with or without a model: the
+    /// phase mark and the tare (suction profile).
+    fn mark_grasp_start(&mut self) {
+        self.marks |= mark::GRASP_START;
+        if self.profile.tare {
+            self.tare_q4 = self.last_q4;
+            // The profile's live zero is subtracted as well: keep it out of the tare.
+            let z = self.profile.zero_counts << crate::decimate::OUT_FRAC_BITS;
+            for t in &mut self.tare_q4 {
+                *t -= z;
+            }
+            self.tared = true;
+        }
+    }
+
     fn command(&mut self, cmd: Command) -> (ReplyStatus, ReplyBody) {
         let have_model = self.model.is_ok();
         match cmd {
             Command::Ping { token } => (ReplyStatus::Ok, ReplyBody::Pong { token }),
             Command::Info => (ReplyStatus::Ok, ReplyBody::Info(self.info())),
+            Command::Lift => {
+                self.marks |= mark::LIFT;
+                (ReplyStatus::Ok, ReplyBody::Lifted)
+            }
+            Command::StreamMode(m) => {
+                self.stream = m;
+                (ReplyStatus::Ok, ReplyBody::StreamMode(m))
+            }
+            Command::UploadBegin { .. } | Command::UploadChunk(_) | Command::UploadCommit => (
+                ReplyStatus::BadArgument,
+                ReplyBody::Upload {
+                    command: cmd.msg_type(),
+                    code: upload_code::UNSUPPORTED,
+                    detail: 0,
+                    slot: 0,
+                    value: 0,
+                },
+            ),
             Command::GraspStart if have_model => {
+                self.mark_grasp_start();
                 for s in &mut self.states {
                     s.reset();
                 }
                 self.stale = 0;
-                if self.profile.tare {
-                    self.tare_q4 = self.last_q4;
-                    // The profile's live zero is subtracted as well: keep it out of the tare.
-                    let z = self.profile.zero_counts << crate::decimate::OUT_FRAC_BITS;
-                    for t in &mut self.tare_q4 {
-                        *t -= z;
-                    }
-                    self.tared = true;
-                }
                 self.armed = true;
                 (ReplyStatus::Ok, ReplyBody::GraspStarted)
             }
             Command::Release if have_model => {
+                self.marks |= mark::RELEASE;
                 self.armed = false;
                 (ReplyStatus::Ok, ReplyBody::Released)
             }
@@ -392,8 +507,15 @@ impl<'m> App<'m> {
                     },
                 )
             }
-            Command::GraspStart => (ReplyStatus::NoModel, ReplyBody::GraspStarted),
-            Command::Release => (ReplyStatus::NoModel, ReplyBody::Released),
+            // Without a model the phase is still marked in the sample stream (recording).
+            Command::GraspStart => {
+                self.mark_grasp_start();
+                (ReplyStatus::NoModel, ReplyBody::GraspStarted)
+            }
+            Command::Release => {
+                self.marks |= mark::RELEASE;
+                (ReplyStatus::NoModel, ReplyBody::Released)
+            }
             Command::SetThreshold { .. } => (
                 ReplyStatus::NoModel,
                 ReplyBody::ThresholdSet {

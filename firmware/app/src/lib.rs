@@ -7,7 +7,8 @@
 //! ADC scans (raw counts, oversampled) ─▶ frontend: fault detection + anti-alias FIR, ÷R
 //!   ─▶ FrameInput (one per model period) ─▶ app: tare, scaling, slipguard-core model per channel,
 //!      flags, deadline accounting ─▶ protocol::Frame ─▶ COBS bytes on the UART
-//! commands (COBS bytes from the UART) ─▶ app::App::handle ─▶ reply frames
+//! commands (COBS bytes from the UART) ─▶ upload::Uploader::handle (model uploads into the
+//!    flash slots) or app::App::handle ─▶ reply frames (samples frames per the stream mode)
 //! ```
 //!
 //! The embassy firmware (`firmware/src`) and the QEMU build (`firmware/qemu-app`) add only a
@@ -24,6 +25,7 @@ pub mod frontend;
 pub mod profile;
 pub mod replay;
 pub mod schedule;
+pub mod upload;
 
 /// Most channels any profile has (= [`slipguard_core::protocol::MAX_CHANNELS`]).
 pub const MAX_CHANNELS: usize = slipguard_core::protocol::MAX_CHANNELS;

@@ -174,11 +174,11 @@ pub fn run(
                     sent += 1;
                 });
             }
-            if let Some(f) = app.frame(&input, false) {
-                let n = wire(&f, &mut buf);
+            app.frames(&input, false, |f| {
+                let n = wire(f, &mut buf);
                 sink(&buf[..n]);
                 sent += 1;
-            }
+            });
         }
     }
     sent
