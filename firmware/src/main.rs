@@ -8,7 +8,8 @@
 //! ```text
 //! TIM2 TRGO ─▶ ADC1 scan (16 or 4 ch) ─DMA2 S0 ring─▶ adc_task: Frontend (faults, FIR ÷16)
 //!    ─▶ EVENTS ─▶ inference (main): App::infer/emit, deadline, DWT cycles, UNSTABLE pin, IWDG
-//! USART1 RX ─DMA2 S2 ring─▶ rx_task ─▶ EVENTS (commands, in arrival order with the frames)
+//! USART1 RX ─DMA2 S2 ring─▶ rx_task ─▶ EVENTS (commands, in arrival order with the frames;
+//!    model uploads into flash sectors 10/11 through slipguard_app::upload and BoardFlash)
 //! inference ─▶ TX queue ─▶ tx_task ─DMA2 S7─▶ USART1 TX (COBS frames, docs/protocol.md)
 //! ```
 #![no_std]
@@ -34,6 +35,7 @@ use slipguard_app::frontend::{FrameInput, Frontend, SCANS_PER_FRAME};
 use slipguard_app::profile::Profile;
 use slipguard_app::replay;
 use slipguard_app::schedule::Deadline;
+use slipguard_app::upload::{self, FlashError, Uploader};
 use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
@@ -58,11 +60,78 @@ const CHANNELS: usize = PROFILE.channels;
 /// Link to the hand controller: USART1, 921 600 baud 8N1 (a 16-channel flag frame, 56 bytes on
 /// the wire, takes 0.61 ms).
 const BAUD: u32 = 921_600;
-/// Independent watchdog timeout: fed once per frame (every ≤ 60 ms) and on the stall path.
-const WATCHDOG_US: u32 = 1_000_000;
+/// Independent watchdog timeout: fed once per frame (every ≤ 60 ms) and on the stall path; over
+/// the 2 s a model-slot erase (128 KiB sector) may stall the CPU during an upload.
+const WATCHDOG_US: u32 = 4_000_000;
 
 // The default model blob in the `.model` section and `model_region()`.
 include!("../model-region.rs");
+
+/// Bytes per model slot: one 128 KiB flash sector.
+const SLOT_LEN: usize = 128 * 1024;
+
+/// The two model slots for `slipguard_app::upload`: slot 1 is the MODEL region (the last sector,
+/// holding the firmware image's default blob), slot 0 the sector before it (kept out of FLASH by
+/// `memory.x`).
+struct BoardFlash {
+    flash: embassy_stm32::flash::Flash<'static, embassy_stm32::flash::Blocking>,
+    /// Offset of slot 0 from the start of flash.
+    base: u32,
+}
+
+impl BoardFlash {
+    fn new(p: Peri<'static, peripherals::FLASH>) -> Self {
+        let model = model_region().as_ptr() as u32;
+        Self {
+            flash: embassy_stm32::flash::Flash::new_blocking(p),
+            base: (model - embassy_stm32::flash::FLASH_BASE as u32) - SLOT_LEN as u32,
+        }
+    }
+    fn offset(&self, slot: u8) -> Option<u32> {
+        (slot < upload::SLOTS).then(|| self.base + slot as u32 * SLOT_LEN as u32)
+    }
+    /// A slot as the CPU sees it (empty for an unknown slot).
+    fn slot(&self, slot: u8) -> &'static [u8] {
+        match self.offset(slot) {
+            // SAFETY: both slots are whole sectors of the memory-mapped internal flash, outside
+            // the FLASH region the program lives in. They change only through `erase`/`write`
+            // on the *other* slot than the one the app runs from (an upload never writes the
+            // active slot, and after a commit the board restarts), so a running model's bytes
+            // never change under it.
+            Some(at) => unsafe {
+                core::slice::from_raw_parts(
+                    (embassy_stm32::flash::FLASH_BASE as u32 + at) as *const u8,
+                    SLOT_LEN,
+                )
+            },
+            None => &[],
+        }
+    }
+}
+
+impl upload::Flash for BoardFlash {
+    fn slot_len(&self) -> usize {
+        SLOT_LEN
+    }
+    fn erase(&mut self, slot: u8) -> Result<(), FlashError> {
+        let at = self.offset(slot).ok_or(FlashError::Erase)?;
+        self.flash
+            .blocking_erase(at, at + SLOT_LEN as u32)
+            .map_err(|_| FlashError::Erase)
+    }
+    fn write(&mut self, slot: u8, offset: usize, data: &[u8]) -> Result<(), FlashError> {
+        let at = self.offset(slot).ok_or(FlashError::Write)?;
+        if offset + data.len() > SLOT_LEN {
+            return Err(FlashError::Write);
+        }
+        self.flash
+            .blocking_write(at + offset as u32, data)
+            .map_err(|_| FlashError::Write)
+    }
+    fn read(&self, slot: u8) -> &[u8] {
+        self.slot(slot)
+    }
+}
 
 /// What the inference task receives, in arrival order.
 enum Event {
@@ -230,8 +299,22 @@ async fn main(spawner: Spawner) {
     let mut wdg: IndependentWatchdog<'static, IWDG> = IndependentWatchdog::new(p.IWDG, WATCHDOG_US);
     wdg.unleash();
 
-    // The model: checked at boot, faults reported, never a crash.
-    let app = APP.init_with(|| App::new(PROFILE, model_region()));
+    // The model: the valid slot with the highest sequence number, checked at boot, faults
+    // reported, never a crash.
+    let mut flash = BoardFlash::new(p.FLASH);
+    let active = upload::select(&flash, &PROFILE);
+    let mut uploader = Uploader::new(active);
+    match active {
+        Some(a) => info!(
+            "model slot {} (sequence {}, {} bytes)",
+            a.slot, a.seq, a.len
+        ),
+        None => error!("no valid model in either slot: waiting for an upload"),
+    }
+    let blob = active
+        .and_then(|a| flash.slot(a.slot).get(..a.len))
+        .unwrap_or(&[]);
+    let app = APP.init_with(|| App::new(PROFILE, blob));
     match app.model() {
         Ok(m) => {
             let c = m.config();
@@ -335,12 +418,24 @@ async fn main(spawner: Spawner) {
         match ev {
             Event::Rx(bytes) => {
                 let mut replies: heapless::Vec<Frame, 8> = heapless::Vec::new();
-                replay::receive(app, &mut deframer, &bytes, |f| {
-                    let _ = replies.push(*f);
-                });
+                let reload =
+                    upload::receive(&mut uploader, app, &mut flash, &mut deframer, &bytes, |f| {
+                        let _ = replies.push(*f);
+                    });
                 for f in &replies {
                     debug!("reply type {:#04x}", f.msg.msg_type());
                     send(app, f);
+                }
+                wdg.pet(); // a slot erase may have stalled the CPU for up to 2 s
+                if let Some(a) = reload {
+                    // Model changed: restart so that the boot path selects slot `a`, copies it
+                    // and sets the ADC rate and deadlines from it. The reply goes out first.
+                    info!(
+                        "model uploaded into slot {} (sequence {}): restarting",
+                        a.slot, a.seq
+                    );
+                    Timer::after_millis(20).await;
+                    cortex_m::peripheral::SCB::sys_reset();
                 }
             }
             Event::Frame(input, available_us) => {
@@ -360,6 +455,9 @@ async fn main(spawner: Spawner) {
                         cycles,
                         app.overruns().saturating_add(1)
                     );
+                }
+                if let Some(f) = app.emit_samples(&r, late) {
+                    send(app, &f);
                 }
                 if let Some(f) = app.emit(&r, late) {
                     send(app, &f);

@@ -15,7 +15,9 @@
  *         if (r == SG_OK)            ... use f (f.type tells which union member is valid)
  *         else if (r != SG_PENDING)  ... a corrupt run (r = error code 1..9); count it
  *
- * Encoding commands (grasp start, release, set threshold, ping, info): sg_encode_command.
+ * Encoding commands (grasp start, lift, release, set threshold, stream mode, ping, info):
+ * sg_encode_command. Model uploads are sent by `slipguard-export upload`; this header decodes
+ * their replies (and the upload commands' headers, for logging).
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
@@ -33,26 +35,60 @@ extern "C" {
 #define SG_MAX_CHANNELS 16u
 #define SG_HEADER_LEN 4u
 #define SG_CRC_LEN 4u
-#define SG_MAX_PAYLOAD 64u
+#define SG_MAX_CHUNK 128u
+/* The largest payload is an upload chunk: header 4 + offset 4 + 128 data + chunk CRC 4 + CRC 4. */
+#define SG_MAX_PAYLOAD 144u
 /* COBS of the largest payload (one overhead byte) plus the 0x00 delimiter. */
-#define SG_MAX_WIRE 66u
+#define SG_MAX_WIRE 146u
 #define SG_P_NONE 0xFFFFu
 
 /* Message types (payload byte 1). */
 #define SG_T_FLAGS 0x01u
 #define SG_T_FAULT 0x02u
 #define SG_T_ERROR 0x03u
+#define SG_T_SAMPLES 0x04u
 #define SG_T_PING 0x10u
 #define SG_T_GRASP_START 0x11u
 #define SG_T_RELEASE 0x12u
 #define SG_T_SET_THRESHOLD 0x13u
 #define SG_T_INFO 0x14u
+#define SG_T_LIFT 0x15u
+#define SG_T_STREAM_MODE 0x16u
+#define SG_T_UPLOAD_BEGIN 0x17u
+#define SG_T_UPLOAD_CHUNK 0x18u
+#define SG_T_UPLOAD_COMMIT 0x19u
 #define SG_T_REPLY 0x80u /* reply type = command type | SG_T_REPLY */
 
 /* Flag-frame status bits. */
 #define SG_ST_ARMED 0x01u
 #define SG_ST_LATE 0x02u
 #define SG_ST_TARED 0x04u
+
+/* Phase marks of a samples frame: the commands handled since the previous frame. */
+#define SG_MARK_GRASP_START 0x01u
+#define SG_MARK_LIFT 0x02u
+#define SG_MARK_RELEASE 0x04u
+
+/* Stream modes (stream-mode command). */
+#define SG_MODE_FLAGS 0u
+#define SG_MODE_FLAGS_SAMPLES 1u
+#define SG_MODE_SAMPLES 2u
+
+/* Upload reply codes (docs/protocol.md says what to fix for each). */
+#define SG_UP_OK 0u
+#define SG_UP_NOT_STARTED 1u
+#define SG_UP_ARMED 2u
+#define SG_UP_WRONG_SIZE 3u
+#define SG_UP_OUT_OF_ORDER 4u
+#define SG_UP_BAD_CHUNK 5u
+#define SG_UP_CHUNK_LENGTH 6u
+#define SG_UP_FLASH 7u
+#define SG_UP_INCOMPLETE 8u
+#define SG_UP_BLOB_CRC 9u
+#define SG_UP_BAD_BLOB 10u
+#define SG_UP_RATE_MISMATCH 11u
+#define SG_UP_UNIT_MISMATCH 12u
+#define SG_UP_UNSUPPORTED 13u
 
 /* Fault codes (fault frame byte 8). */
 #define SG_FAULT_BAD_MODEL 1u
@@ -84,6 +120,17 @@ typedef struct {
     uint16_t skipped;
     uint16_t p[SG_MAX_CHANNELS]; /* Q0.15 p(unstable), SG_P_NONE = not predicted; [N..] = SG_P_NONE */
 } sg_flags;
+
+/* One frame of model input (sample stream). */
+typedef struct {
+    uint32_t timestamp_us; /* as in flag frames */
+    uint8_t status;        /* SG_ST_* */
+    uint8_t marks;         /* SG_MARK_* */
+    uint8_t channels;      /* N, 1..16 */
+    uint8_t unit;          /* 0 mN (hand), 1 counts = 1/16 ADC count (suction) */
+    uint16_t fault;        /* bit c: channel c faulted */
+    int32_t value[SG_MAX_CHANNELS]; /* model input of channel c in `unit`; [N..] = 0 */
+} sg_samples;
 
 typedef struct {
     uint32_t timestamp_us;
@@ -121,13 +168,27 @@ typedef struct {
     uint16_t threshold_q15; /* set threshold / its reply */
     uint8_t raise_after;
     uint8_t clear_after;
+    uint8_t mode;           /* stream mode / its reply: SG_MODE_* */
+    uint32_t size;          /* upload begin: blob bytes */
+    uint32_t crc;           /* upload begin: blob CRC-32; upload chunk: chunk CRC-32 */
+    uint32_t offset;        /* upload chunk: offset (decoded only, data not kept) */
+    uint8_t len;            /* upload chunk: data bytes */
 } sg_args;
+
+/* Reply to an upload command (begin, chunk, commit). */
+typedef struct {
+    uint8_t code;   /* SG_UP_* */
+    uint8_t detail; /* blob error kind (SG_UP_BAD_BLOB), flash step (SG_UP_FLASH) */
+    uint8_t slot;   /* slot written, or made active by a commit */
+    uint32_t value; /* next expected offset, CRC, rate... (docs/protocol.md) */
+} sg_upload;
 
 typedef struct {
     uint16_t request_seq;
     uint8_t status; /* 0 ok, 1 bad argument, 2 no model */
-    sg_args args;   /* pong token, threshold in force */
+    sg_args args;   /* pong token, threshold in force, stream mode in force */
     sg_info info;   /* reply to info */
+    sg_upload upload; /* reply to an upload command */
 } sg_reply;
 
 typedef struct {
@@ -135,6 +196,7 @@ typedef struct {
     uint16_t seq;
     union {
         sg_flags flags;
+        sg_samples samples;
         sg_fault fault;
         sg_error error;
         sg_args command;
@@ -180,18 +242,25 @@ static inline uint32_t sg_u32(const uint8_t *b) {
     return (uint32_t)b[0] | ((uint32_t)b[1] << 8) | ((uint32_t)b[2] << 16) | ((uint32_t)b[3] << 24);
 }
 
-/* Body length of the fixed-size types, -1 for flags and unknown types. */
+/* Body length of the fixed-size types, -1 for flags, samples, upload chunks and unknown types. */
 static inline int sg_fixed_body_len(uint8_t t) {
     switch (t) {
     case SG_T_FAULT: return 10;
     case SG_T_ERROR: return 4;
     case SG_T_PING: return 4;
-    case SG_T_GRASP_START: case SG_T_RELEASE: case SG_T_INFO: return 0;
+    case SG_T_GRASP_START: case SG_T_RELEASE: case SG_T_INFO: case SG_T_LIFT:
+    case SG_T_UPLOAD_COMMIT: return 0;
     case SG_T_SET_THRESHOLD: return 4;
+    case SG_T_STREAM_MODE: return 1;
+    case SG_T_UPLOAD_BEGIN: return 8;
     case SG_T_REPLY | SG_T_PING: return 7;
-    case SG_T_REPLY | SG_T_GRASP_START: case SG_T_REPLY | SG_T_RELEASE: return 3;
+    case SG_T_REPLY | SG_T_GRASP_START: case SG_T_REPLY | SG_T_RELEASE:
+    case SG_T_REPLY | SG_T_LIFT: return 3;
     case SG_T_REPLY | SG_T_SET_THRESHOLD: return 7;
     case SG_T_REPLY | SG_T_INFO: return 43;
+    case SG_T_REPLY | SG_T_STREAM_MODE: return 4;
+    case SG_T_REPLY | SG_T_UPLOAD_BEGIN: case SG_T_REPLY | SG_T_UPLOAD_CHUNK:
+    case SG_T_REPLY | SG_T_UPLOAD_COMMIT: return 10;
     default: return -1;
     }
 }
@@ -211,6 +280,10 @@ static inline int sg_decode_payload(const uint8_t *p, size_t n, sg_frame *f) {
     body_len = n - SG_HEADER_LEN - SG_CRC_LEN;
     if (t == SG_T_FLAGS) {
         if (body_len < 14) return SG_E_LENGTH;
+    } else if (t == SG_T_SAMPLES) {
+        if (body_len < 10) return SG_E_LENGTH;
+    } else if (t == SG_T_UPLOAD_CHUNK) {
+        if (body_len < 4 + 1 + 4 || body_len > 4 + SG_MAX_CHUNK + 4) return SG_E_LENGTH;
     } else {
         int want = sg_fixed_body_len(t);
         if (want < 0) return SG_E_TYPE;
@@ -239,6 +312,24 @@ static inline int sg_decode_payload(const uint8_t *p, size_t n, sg_frame *f) {
         if ((fl->unstable & ~valid) || (fl->fault & ~valid)) return SG_E_VALUE;
         return SG_OK;
     }
+    case SG_T_SAMPLES: {
+        sg_samples *sm = &f->u.samples;
+        uint16_t valid;
+        sm->timestamp_us = sg_u32(b);
+        sm->status = b[4];
+        sm->marks = b[5];
+        sm->channels = b[6];
+        sm->unit = b[7];
+        if (sm->channels == 0 || sm->channels > SG_MAX_CHANNELS) return SG_E_VALUE;
+        if (sm->marks & ~(SG_MARK_GRASP_START | SG_MARK_LIFT | SG_MARK_RELEASE)) return SG_E_VALUE;
+        if (body_len != 10u + 4u * sm->channels) return SG_E_LENGTH;
+        sm->fault = sg_u16(b + 8);
+        for (c = 0; c < SG_MAX_CHANNELS; c++)
+            sm->value[c] = c < sm->channels ? (int32_t)sg_u32(b + 10 + 4 * c) : 0;
+        valid = sm->channels == 16 ? 0xFFFFu : (uint16_t)((1u << sm->channels) - 1u);
+        if (sm->fault & ~valid) return SG_E_VALUE;
+        return SG_OK;
+    }
     case SG_T_FAULT:
         f->u.fault.timestamp_us = sg_u32(b);
         f->u.fault.code = b[4];
@@ -253,7 +344,20 @@ static inline int sg_decode_payload(const uint8_t *p, size_t n, sg_frame *f) {
     case SG_T_PING:
         f->u.command.token = sg_u32(b);
         return SG_OK;
-    case SG_T_GRASP_START: case SG_T_RELEASE: case SG_T_INFO:
+    case SG_T_GRASP_START: case SG_T_RELEASE: case SG_T_INFO: case SG_T_LIFT:
+    case SG_T_UPLOAD_COMMIT:
+        return SG_OK;
+    case SG_T_STREAM_MODE:
+        f->u.command.mode = b[0];
+        return b[0] > SG_MODE_SAMPLES ? SG_E_VALUE : SG_OK;
+    case SG_T_UPLOAD_BEGIN:
+        f->u.command.size = sg_u32(b);
+        f->u.command.crc = sg_u32(b + 4);
+        return SG_OK;
+    case SG_T_UPLOAD_CHUNK:
+        f->u.command.offset = sg_u32(b);
+        f->u.command.len = (uint8_t)(body_len - 8);
+        f->u.command.crc = sg_u32(b + body_len - 4);
         return SG_OK;
     case SG_T_SET_THRESHOLD:
         f->u.command.threshold_q15 = sg_u16(b);
@@ -276,6 +380,16 @@ static inline int sg_decode_payload(const uint8_t *p, size_t n, sg_frame *f) {
             r->args.raise_after = b[2];
             r->args.clear_after = b[3];
             break;
+        case SG_T_STREAM_MODE:
+            r->args.mode = b[0];
+            if (b[0] > SG_MODE_SAMPLES) return SG_E_VALUE;
+            break;
+        case SG_T_UPLOAD_BEGIN: case SG_T_UPLOAD_CHUNK: case SG_T_UPLOAD_COMMIT:
+            r->upload.code = b[0];
+            r->upload.detail = b[1];
+            r->upload.slot = b[2];
+            r->upload.value = sg_u32(b + 3);
+            break;
         case SG_T_INFO: {
             sg_info *i = &r->info;
             if (b[0] != SG_VERSION) return SG_E_VALUE;
@@ -297,7 +411,7 @@ static inline int sg_decode_payload(const uint8_t *p, size_t n, sg_frame *f) {
             i->name[12] = 0;
             break;
         }
-        default: break; /* grasp started, released: no fields */
+        default: break; /* grasp started, lifted, released: no fields */
         }
         return SG_OK;
     }
@@ -353,7 +467,8 @@ static inline int sg_deframer_push(sg_deframer *d, uint8_t byte, sg_frame *f) {
 }
 
 /* Encodes a command for the device: `type` one of SG_T_PING (args->token), SG_T_GRASP_START,
- * SG_T_RELEASE, SG_T_SET_THRESHOLD (args->threshold_q15, raise_after, clear_after), SG_T_INFO;
+ * SG_T_LIFT, SG_T_RELEASE, SG_T_SET_THRESHOLD (args->threshold_q15, raise_after, clear_after),
+ * SG_T_STREAM_MODE (args->mode), SG_T_INFO;
  * `args` may be NULL for the commands without fields. Writes COBS(payload) 00 into `out`
  * (at least SG_MAX_WIRE bytes) and returns the number of bytes to send, 0 for an unknown type. */
 static inline size_t sg_encode_command(uint8_t type, uint16_t seq, const sg_args *args, uint8_t *out) {
@@ -376,7 +491,11 @@ static inline size_t sg_encode_command(uint8_t type, uint16_t seq, const sg_args
         p[n++] = args->raise_after;
         p[n++] = args->clear_after;
         break;
-    case SG_T_GRASP_START: case SG_T_RELEASE: case SG_T_INFO: break;
+    case SG_T_STREAM_MODE:
+        if (!args || args->mode > SG_MODE_SAMPLES) return 0;
+        p[n++] = args->mode;
+        break;
+    case SG_T_GRASP_START: case SG_T_RELEASE: case SG_T_INFO: case SG_T_LIFT: break;
     default: return 0;
     }
     crc = sg_crc32(p, n);

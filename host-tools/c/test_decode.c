@@ -21,6 +21,14 @@ static void print_frame(const sg_frame *f) {
         printf("\n");
         break;
     }
+    case SG_T_SAMPLES: {
+        const sg_samples *x = &f->u.samples;
+        printf("samples seq=%u t=%lu st=%u marks=%u n=%u unit=%u fault=%u v=", f->seq,
+               (unsigned long)x->timestamp_us, x->status, x->marks, x->channels, x->unit, x->fault);
+        for (c = 0; c < x->channels; c++) printf(c ? ",%ld" : "%ld", (long)x->value[c]);
+        printf("\n");
+        break;
+    }
     case SG_T_FAULT:
         printf("fault seq=%u t=%lu code=%u detail=%u value=%lu\n", f->seq,
                (unsigned long)f->u.fault.timestamp_us, f->u.fault.code, f->u.fault.detail,
@@ -36,6 +44,18 @@ static void print_frame(const sg_frame *f) {
     case SG_T_GRASP_START: printf("grasp_start seq=%u\n", f->seq); break;
     case SG_T_RELEASE: printf("release seq=%u\n", f->seq); break;
     case SG_T_INFO: printf("info seq=%u\n", f->seq); break;
+    case SG_T_LIFT: printf("lift seq=%u\n", f->seq); break;
+    case SG_T_STREAM_MODE: printf("stream_mode seq=%u mode=%u\n", f->seq, f->u.command.mode); break;
+    case SG_T_UPLOAD_BEGIN:
+        printf("upload_begin seq=%u size=%lu crc=%lu\n", f->seq, (unsigned long)f->u.command.size,
+               (unsigned long)f->u.command.crc);
+        break;
+    case SG_T_UPLOAD_CHUNK:
+        printf("upload_chunk seq=%u offset=%lu len=%u crc=%lu\n", f->seq,
+               (unsigned long)f->u.command.offset, f->u.command.len,
+               (unsigned long)f->u.command.crc);
+        break;
+    case SG_T_UPLOAD_COMMIT: printf("upload_commit seq=%u\n", f->seq); break;
     case SG_T_SET_THRESHOLD:
         printf("set_threshold seq=%u thr=%u raise=%u clear=%u\n", f->seq,
                f->u.command.threshold_q15, f->u.command.raise_after, f->u.command.clear_after);
@@ -48,6 +68,11 @@ static void print_frame(const sg_frame *f) {
         case SG_T_SET_THRESHOLD:
             printf(" thr=%u raise=%u clear=%u", r->args.threshold_q15, r->args.raise_after,
                    r->args.clear_after);
+            break;
+        case SG_T_STREAM_MODE: printf(" mode=%u", r->args.mode); break;
+        case SG_T_UPLOAD_BEGIN: case SG_T_UPLOAD_CHUNK: case SG_T_UPLOAD_COMMIT:
+            printf(" code=%u detail=%u slot=%u value=%lu", r->upload.code, r->upload.detail,
+                   r->upload.slot, (unsigned long)r->upload.value);
             break;
         case SG_T_INFO: {
             const sg_info *i = &r->info;
@@ -84,6 +109,9 @@ int main(int argc, char **argv) {
         a.clear_after = 3;
         hex(out, sg_encode_command(SG_T_SET_THRESHOLD, 8, &a, out));
         hex(out, sg_encode_command(SG_T_GRASP_START, 9, NULL, out));
+        a.mode = SG_MODE_FLAGS_SAMPLES;
+        hex(out, sg_encode_command(SG_T_STREAM_MODE, 10, &a, out));
+        hex(out, sg_encode_command(SG_T_LIFT, 11, NULL, out));
         printf("crc=%08lx\n", (unsigned long)sg_crc32((const uint8_t *)"123456789", 9));
         return 0;
     }

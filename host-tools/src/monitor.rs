@@ -211,7 +211,7 @@ impl Monitor {
                     self.info = Some(i);
                 }
             }
-            Message::Command(_) => {}
+            Message::Samples(_) | Message::Command(_) => {}
         }
         lost
     }

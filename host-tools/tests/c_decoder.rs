@@ -1,18 +1,18 @@
 //! The C decoder (`host-tools/c/slipguard_protocol.h`) against the Rust one: compiled with the
 //! system C compiler (`cc`, strict C99), run on the golden frames the core's tests pin, on the
 //! whole replay stream of the recorded trial (identical to the QEMU build's output), on a
-//! corrupted-blob stream and on streams with random damage; its field-by-field output must be
-//! the Rust decoder's, error codes included.
+//! corrupted-blob stream, on the trial with the sample stream on and on streams with random
+//! damage; its field-by-field output must be the Rust decoder's, error codes included.
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 
 use slipguard_app::profile::Profile;
-use slipguard_app::replay::{self as fw, CHEEZ_TRIAL, cheez_script};
+use slipguard_app::replay::{self as fw, CHEEZ_TRIAL, ScriptItem, cheez_script};
 use slipguard_core::blob::AlignedBlob;
 use slipguard_core::protocol::{
-    self, Command as Cmd, Deframer, Frame, MAX_WIRE, Message, ReplyBody,
+    self, Command as Cmd, Deframer, Frame, MAX_WIRE, Message, ReplyBody, StreamMode,
 };
 
 fn driver() -> &'static Path {
@@ -81,6 +81,22 @@ fn line(f: &Frame) -> String {
                 p.join(",")
             )
         }
+        Message::Samples(x) => {
+            let v: Vec<String> = x.value[..x.channels as usize]
+                .iter()
+                .map(|v| v.to_string())
+                .collect();
+            format!(
+                "samples seq={s} t={} st={} marks={} n={} unit={} fault={} v={}",
+                x.timestamp_us,
+                x.status,
+                x.marks,
+                x.channels,
+                x.unit,
+                x.fault,
+                v.join(",")
+            )
+        }
         Message::Fault(x) => format!(
             "fault seq={s} t={} code={} detail={} value={}",
             x.timestamp_us, x.code, x.detail, x.value
@@ -94,6 +110,16 @@ fn line(f: &Frame) -> String {
             Cmd::GraspStart => format!("grasp_start seq={s}"),
             Cmd::Release => format!("release seq={s}"),
             Cmd::Info => format!("info seq={s}"),
+            Cmd::Lift => format!("lift seq={s}"),
+            Cmd::StreamMode(m) => format!("stream_mode seq={s} mode={}", m as u8),
+            Cmd::UploadBegin { size, crc } => {
+                format!("upload_begin seq={s} size={size} crc={crc}")
+            }
+            Cmd::UploadChunk(c) => format!(
+                "upload_chunk seq={s} offset={} len={} crc={}",
+                c.offset, c.len, c.crc
+            ),
+            Cmd::UploadCommit => format!("upload_commit seq={s}"),
             Cmd::SetThreshold {
                 threshold_q15,
                 raise_after,
@@ -111,6 +137,14 @@ fn line(f: &Frame) -> String {
             );
             match r.body {
                 ReplyBody::Pong { token } => format!("{head} token={token}"),
+                ReplyBody::StreamMode(m) => format!("{head} mode={}", m as u8),
+                ReplyBody::Upload {
+                    code,
+                    detail,
+                    slot,
+                    value,
+                    ..
+                } => format!("{head} code={code} detail={detail} slot={slot} value={value}"),
                 ReplyBody::ThresholdSet {
                     threshold_q15,
                     raise_after,
@@ -170,15 +204,22 @@ fn hex(s: &str) -> Vec<u8> {
         .collect()
 }
 
-/// The wire bytes pinned by `slipguard_core::protocol::tests::golden_bytes` (and quoted in
-/// docs/protocol.md).
-const GOLDEN: [&str; 6] = [
+/// The wire bytes pinned by `slipguard_core::protocol::tests::golden_bytes` and
+/// `golden_bytes_samples_and_upload` (and quoted in docs/protocol.md).
+const GOLDEN: [&str; 13] = [
     "080101341240420f04010402020402010101027805ff7fffff06403e8f902000",
     "0401100709efbeadde82cc4de800",
     "0401130809cd4c02038eaa754500",
     "040111090577cade5500",
     "0401900302070109efbeadde8d5b96ac00",
     "03010201010101010b0105443322115e830dd000",
+    "0701040201a861010401030402080101010103dc05010728fbffff1e9b01055235fd1e00",
+    "0401160a0601ae63a0f400",
+    "0401150b022903e16000",
+    "0401170c043c3a0109efcdab8996de50a600",
+    "0401180d028001010653474d4201020209c777582428bd968500",
+    "0401190e05080d8c1400",
+    "04019805020d0301040101020101050b7aa05600",
 ];
 
 #[test]
@@ -191,7 +232,14 @@ fn golden_frames_field_by_field() {
                 set_threshold seq=8 thr=19661 raise=2 clear=3\n\
                 grasp_start seq=9\n\
                 reply seq=3 type=144 rseq=7 status=0 token=3735928559\n\
-                fault seq=0 t=0 code=1 detail=5 value=287454020\n";
+                fault seq=0 t=0 code=1 detail=5 value=287454020\n\
+                samples seq=258 t=25000 st=1 marks=3 n=4 unit=0 fault=8 v=0,1500,-1240,39710\n\
+                stream_mode seq=10 mode=1\n\
+                lift seq=11\n\
+                upload_begin seq=12 size=80444 crc=2309737967\n\
+                upload_chunk seq=13 offset=128 len=8 crc=609777607\n\
+                upload_commit seq=14\n\
+                reply seq=5 type=152 rseq=13 status=1 code=4 detail=0 slot=0 value=256\n";
     assert_eq!(c, want);
     assert_eq!(rust_lines(&stream), want);
     // Encoding commands and the CRC check value.
@@ -199,8 +247,8 @@ fn golden_frames_field_by_field() {
     assert_eq!(
         enc,
         format!(
-            "{}\n{}\n{}\ncrc=cbf43926\n",
-            GOLDEN[1], GOLDEN[2], GOLDEN[3]
+            "{}\n{}\n{}\n{}\n{}\ncrc=cbf43926\n",
+            GOLDEN[1], GOLDEN[2], GOLDEN[3], GOLDEN[7], GOLDEN[8]
         )
     );
 }
@@ -240,6 +288,79 @@ fn replay_streams_decode_identically() {
             _ => assert!(flags == 0 && faults > 0),
         }
     }
+}
+
+/// The recorded trial with the sample stream on (stream mode, grasp start, lift, release):
+/// every samples frame decodes in C as in Rust, marks included.
+#[test]
+fn sample_stream_decodes_identically() {
+    let golden = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../firmware/core/tests/fixtures/bench/model.bin"),
+    )
+    .unwrap();
+    let blob = AlignedBlob::new(&golden);
+    let enc = |seq, c| {
+        let mut b = [0u8; MAX_WIRE];
+        let n = protocol::encode(
+            &Frame {
+                seq,
+                msg: Message::Command(c),
+            },
+            &mut b,
+        );
+        b[..n].to_vec()
+    };
+    let mode = enc(1, Cmd::StreamMode(StreamMode::FlagsAndSamples));
+    let grasp = enc(2, Cmd::GraspStart);
+    let lift = enc(3, Cmd::Lift);
+    let release = enc(4, Cmd::Release);
+    let script = [
+        ScriptItem {
+            before_frame: 0,
+            bytes: &mode,
+        },
+        ScriptItem {
+            before_frame: 52,
+            bytes: &grasp,
+        },
+        ScriptItem {
+            before_frame: 87,
+            bytes: &lift,
+        },
+        ScriptItem {
+            before_frame: 300,
+            bytes: &release,
+        },
+    ];
+    let mut stream = Vec::new();
+    fw::run(
+        Profile::HAND,
+        blob.as_bytes(),
+        &CHEEZ_TRIAL,
+        &script,
+        cheez_script::OPEN_WIRES,
+        |b| stream.extend_from_slice(b),
+    );
+    let c = run_c(&[], &stream);
+    assert_eq!(c, rust_lines(&stream));
+    let samples: Vec<&str> = c.lines().filter(|l| l.starts_with("samples")).collect();
+    assert_eq!(samples.len(), 400);
+    assert_eq!(c.lines().filter(|l| l.starts_with("flags")).count(), 400);
+    for (mark, n) in [
+        (" marks=1 ", 1),
+        (" marks=2 ", 1),
+        (" marks=4 ", 1),
+        (" marks=0 ", 397),
+    ] {
+        assert_eq!(
+            samples.iter().filter(|l| l.contains(mark)).count(),
+            n,
+            "{mark}"
+        );
+    }
+    assert!(samples.iter().all(|l| l.contains(" n=16 unit=0 ")));
+    assert!(samples.iter().any(|l| l.contains(" fault=16384 "))); // channel 14's open wire
 }
 
 #[test]

@@ -2,7 +2,8 @@
 //!
 //! Turns trained float LSTM weights (PyTorch/safetensors, ONNX, Keras 3) into the firmware's
 //! quantized model blob (format v1, `docs/model-format.md`), with calibration on recorded data,
-//! a report of what quantization cost, and `inspect`/`verify` for existing blobs.
+//! a report of what quantization cost, `inspect`/`verify` for existing blobs, and `upload` of a
+//! blob to the board over its serial link.
 //! See `docs/export.md`.
 
 pub mod calib;
@@ -12,6 +13,7 @@ pub mod inspect;
 pub mod pipeline;
 pub mod report;
 pub mod settings;
+pub mod upload;
 pub mod write;
 
 pub use error::{ExportError, Result};

@@ -58,6 +58,26 @@ enum Cmd {
     /// Rerun the quantized-vs-float comparison of a blob against its float checkpoint.
     #[command(after_help = EXAMPLES)]
     Verify(VerifyArgs),
+    /// Send a blob to the board over its serial link; it becomes the active model once the
+    /// board has checked it (docs/protocol.md, "Model upload"). Exit codes: 3 port or no reply,
+    /// 12 invalid blob, 13 not active after commit, 14 refused by the board (the message says
+    /// what to fix).
+    Upload(UploadArgs),
+}
+
+#[derive(Args)]
+struct UploadArgs {
+    /// The blob.
+    blob: PathBuf,
+    /// Serial port of the board's UART (e.g. /dev/ttyUSB0, COM3).
+    #[arg(long)]
+    port: String,
+    /// Baud rate.
+    #[arg(long, default_value_t = 921_600)]
+    baud: u32,
+    /// Send release first (the board refuses an upload while flagging is armed).
+    #[arg(long)]
+    release: bool,
 }
 
 /// How to read the model and its settings (later sources win: defaults < file metadata <
@@ -371,6 +391,51 @@ fn run_verify(a: VerifyArgs) -> Result<()> {
     Ok(())
 }
 
+fn run_upload(a: UploadArgs) -> ExitCode {
+    use slipguard_export::upload::{Link, Options, UploadError};
+    let run = || -> Result<slipguard_export::upload::Uploaded, UploadError> {
+        let blob = std::fs::read(&a.blob)
+            .map_err(|e| UploadError::Blob(format!("reading {}: {e}", a.blob.display())))?;
+        let port = serialport::new(&a.port, a.baud)
+            .timeout(std::time::Duration::from_millis(20))
+            .open()
+            .map_err(|e| UploadError::Io(std::io::Error::other(format!("{}: {e}", a.port))))?;
+        let mut link = Link::new(port);
+        let bar = indicatif::ProgressBar::new(blob.len() as u64);
+        let opt = Options {
+            release: a.release,
+            ..Options::default()
+        };
+        let r = link.upload(&blob, &opt, |done, _| bar.set_position(done as u64));
+        bar.finish_and_clear();
+        r
+    };
+    match run() {
+        Ok(u) => {
+            let name: String = u
+                .info
+                .name
+                .iter()
+                .take_while(|&&b| b != 0)
+                .map(|&b| b as char)
+                .collect();
+            println!(
+                "upload: OK, model '{name}' {:#010x} at {:.1} Hz active in slot {} (sequence {}), {} frames resent",
+                u.info.model_crc,
+                u.info.sample_rate_mhz as f64 / 1000.0,
+                u.slot,
+                u.seq,
+                u.resent
+            );
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(e.exit_code())
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
@@ -388,6 +453,7 @@ fn main() -> ExitCode {
             Ok(())
         }),
         Cmd::Verify(a) => run_verify(a),
+        Cmd::Upload(a) => return run_upload(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -169,6 +169,13 @@ impl<'m> App<'m> {
         a
     }
 
+    /// [`Self::reload`] in place, for a board layer that holds the app by reference (the blob
+    /// must live as long as the old one, e.g. flash).
+    pub fn reload_in_place(&mut self, blob: &'m [u8]) {
+        let old = core::mem::replace(self, App::new(self.profile, &[]));
+        *self = old.reload(blob);
+    }
+
     /// The stream mode in force.
     pub fn stream_mode(&self) -> StreamMode {
         self.stream

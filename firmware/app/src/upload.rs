@@ -147,7 +147,9 @@ pub fn slot_state(flash: &impl Flash, profile: &Profile, slot: u8) -> Option<Act
         (0, len)
     } else {
         let t = Trailer::from_bytes(trailer)?;
-        let blob = bytes.get(..t.len as usize).filter(|_| t.len as usize <= tail)?;
+        let blob = bytes
+            .get(..t.len as usize)
+            .filter(|_| t.len as usize <= tail)?;
         if CRC32.checksum(blob) != t.crc {
             return None;
         }
@@ -285,9 +287,7 @@ impl Uploader {
             return Err((upload_code::WRONG_SIZE, 0, capacity));
         }
         let slot = self.target();
-        flash
-            .erase(slot)
-            .map_err(|_| (upload_code::FLASH, 1, 0))?;
+        flash.erase(slot).map_err(|_| (upload_code::FLASH, 1, 0))?;
         self.job = Some(InProgress {
             slot,
             size,
@@ -376,6 +376,30 @@ impl Uploader {
         self.active = Some(new);
         Ok((seq, Outcome::Reload(new)))
     }
+}
+
+/// Feeds received bytes through the deframer, the uploader and the app (as
+/// [`crate::replay::receive`], with uploads); every reply goes to `sink`. Returns the slot to
+/// reload from when a commit made a new model active (the board sends the replies first).
+pub fn receive<F: Flash>(
+    up: &mut Uploader,
+    app: &mut App<'_>,
+    flash: &mut F,
+    deframer: &mut slipguard_core::protocol::Deframer,
+    bytes: &[u8],
+    mut sink: impl FnMut(&Frame),
+) -> Option<Active> {
+    let mut reload = None;
+    for &b in bytes {
+        if let Some(r) = deframer.push_decode(b) {
+            let (reply, outcome) = up.handle(app, flash, r);
+            sink(&reply);
+            if let Outcome::Reload(a) = outcome {
+                reload = Some(a);
+            }
+        }
+    }
+    reload
 }
 
 /// Every upload command is a [`msg_type`] the uploader answers.

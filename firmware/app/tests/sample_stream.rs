@@ -159,7 +159,11 @@ fn phase_marks_in_frame_order_and_flags_unchanged() {
         .collect();
     assert_eq!(
         marked,
-        [(52, mark::GRASP_START), (87, mark::LIFT), (300, mark::RELEASE)]
+        [
+            (52, mark::GRASP_START),
+            (87, mark::LIFT),
+            (300, mark::RELEASE)
+        ]
     );
     // In the wire order: reply, then that frame's samples, then its flags.
     let i = both
@@ -191,7 +195,9 @@ fn samples_and_marks_without_a_model() {
     ));
     // Same values, marks and clock; only the ARMED bit differs (no model: nothing to disarm).
     let strip = |v: &[protocol::Samples]| -> Vec<(u32, u8, [i32; 16])> {
-        v.iter().map(|s| (s.timestamp_us, s.marks, s.value)).collect()
+        v.iter()
+            .map(|s| (s.timestamp_us, s.marks, s.value))
+            .collect()
     };
     assert_eq!(strip(&rec), strip(&with_model));
     assert_eq!(

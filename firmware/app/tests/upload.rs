@@ -174,7 +174,10 @@ fn upload_replaces_the_model_and_the_next_boot_keeps_it() {
     assert_eq!(flash.ops, 0);
     released(&mut app);
     let (r, outcome) = upload_all(&mut up, &mut app, &mut flash, NEW);
-    assert_eq!(upload_reply(&r), (upload_code::OK, 0, 0, 1, ReplyStatus::Ok));
+    assert_eq!(
+        upload_reply(&r),
+        (upload_code::OK, 0, 0, 1, ReplyStatus::Ok)
+    );
     let Outcome::Reload(new) = outcome else {
         panic!("no reload")
     };
@@ -198,7 +201,10 @@ fn upload_replaces_the_model_and_the_next_boot_keeps_it() {
     let (r, outcome) = upload_all(&mut up, &mut app, &mut flash, FACTORY);
     assert_eq!(upload_reply(&r).0, upload_code::OK);
     assert!(matches!(outcome, Outcome::Reload(a) if a.slot == 1 && a.seq == 2));
-    assert_eq!(upload::select(&flash, &HAND).map(|a| (a.slot, a.seq)), Some((1, 2)));
+    assert_eq!(
+        upload::select(&flash, &HAND).map(|a| (a.slot, a.seq)),
+        Some((1, 2))
+    );
 }
 
 /// Power lost at operation `cut` of an upload of `NEW` over a board in state `start`; returns
@@ -288,7 +294,11 @@ fn upload_power_cut_at_every_write_boots_a_valid_model() {
                 released(&mut app);
                 let mut up = Uploader::new(booted);
                 let (r, o) = upload_all(&mut up, &mut app, &mut flash, NEW);
-                assert_eq!(upload_reply(&r).0, upload_code::OK, "resume after cut {cut}");
+                assert_eq!(
+                    upload_reply(&r).0,
+                    upload_code::OK,
+                    "resume after cut {cut}"
+                );
                 assert!(matches!(o, Outcome::Reload(a) if a.seq == want.1 + 1));
             }
         }
@@ -555,7 +565,10 @@ fn upload_into_a_board_without_a_usable_model() {
     assert!(app.model().is_err());
     let mut up = Uploader::new(None);
     let (r, o) = upload_all(&mut up, &mut app, &mut flash, NEW);
-    assert_eq!(upload_reply(&r), (upload_code::OK, 0, 0, 1, ReplyStatus::Ok));
+    assert_eq!(
+        upload_reply(&r),
+        (upload_code::OK, 0, 0, 1, ReplyStatus::Ok)
+    );
     let Outcome::Reload(a) = o else { panic!() };
     let ram2 = AlignedBlob::new(upload::blob(&flash, Some(a)));
     let app = app.reload(ram2.as_bytes());

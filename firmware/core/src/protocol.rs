@@ -983,11 +983,9 @@ pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
         msg_type::INFO => Message::Command(Command::Info),
         msg_type::LIFT => Message::Command(Command::Lift),
         msg_type::UPLOAD_COMMIT => Message::Command(Command::UploadCommit),
-        msg_type::STREAM_MODE => {
-            Message::Command(Command::StreamMode(
-                StreamMode::from_u8(r.u8()).ok_or(bad_value)?,
-            ))
-        }
+        msg_type::STREAM_MODE => Message::Command(Command::StreamMode(
+            StreamMode::from_u8(r.u8()).ok_or(bad_value)?,
+        )),
         msg_type::UPLOAD_BEGIN => Message::Command(Command::UploadBegin {
             size: r.u32(),
             crc: r.u32(),
@@ -1712,7 +1710,20 @@ mod tests {
                 msg_type: msg_type::STREAM_MODE
             })
         );
-        let v = vec![VERSION, msg_type::UPLOAD_CHUNK, 0, 0, 0, 0, 0, 0, 1, 2, 3, 4];
+        let v = vec![
+            VERSION,
+            msg_type::UPLOAD_CHUNK,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            1,
+            2,
+            3,
+            4,
+        ];
         assert_eq!(
             decode(&with_crc(v)),
             Err(DecodeError::BadLength {

@@ -1,0 +1,401 @@
+//! `slipguard-export upload`: sends a model blob to the firmware over its serial link
+//! (docs/protocol.md, "Model upload"): begin, chunks of 128 bytes with their CRC, commit, then an
+//! info request to confirm the new model runs. Frames the device streams meanwhile (flags,
+//! samples) are skipped; a lost or damaged frame is resent, an out-of-order reply resumes at the
+//! offset the device names. Every refusal becomes an [`UploadError::Refused`] whose message says
+//! what to fix.
+
+use std::io::{self, Read, Write};
+use std::time::{Duration, Instant};
+
+use slipguard_core::blob::{CRC32, ModelBlob};
+use slipguard_core::protocol::{
+    self, Chunk, Command, Deframer, Frame, Info, MAX_CHUNK, MAX_WIRE, Message, ReplyBody,
+    ReplyStatus, msg_type, upload_code,
+};
+
+/// Why an upload failed.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum UploadError {
+    /// The file is not a valid blob (checked before anything is sent).
+    Blob(String),
+    /// The serial port failed.
+    Io(io::Error),
+    /// No reply in time, after every retry.
+    NoReply {
+        /// The command that went unanswered.
+        what: &'static str,
+    },
+    /// The device refused a command.
+    Refused {
+        /// The upload reply code.
+        code: u8,
+        /// Its detail byte.
+        detail: u8,
+        /// Its value.
+        value: u32,
+    },
+    /// The device answered the final info with another model than the one sent.
+    NotActive {
+        /// The CRC the device reports.
+        running: u32,
+        /// The CRC of the blob sent.
+        sent: u32,
+    },
+}
+
+impl UploadError {
+    /// Process exit code: 12 invalid blob (as `export`/`inspect`), 3 I/O or no reply, 14 the
+    /// device refused, 13 the model did not become active.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            Self::Blob(_) => 12,
+            Self::Io(_) | Self::NoReply { .. } => 3,
+            Self::Refused { .. } => 14,
+            Self::NotActive { .. } => 13,
+        }
+    }
+}
+
+impl std::fmt::Display for UploadError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Blob(m) => write!(
+                f,
+                "not a model blob: {m}; re-export it with slipguard-export"
+            ),
+            Self::Io(e) => write!(
+                f,
+                "serial port: {e}; check --port and that nothing else holds it"
+            ),
+            Self::NoReply { what } => write!(
+                f,
+                "no reply to {what}: check the cable, the port and --baud (921600), and that the firmware is running"
+            ),
+            Self::Refused {
+                code,
+                detail,
+                value,
+            } => f.write_str(&refusal_hint(*code, *detail, *value)),
+            Self::NotActive { running, sent } => write!(
+                f,
+                "the device runs model CRC {running:#010x}, not the uploaded {sent:#010x}: upload again and watch for fault frames"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for UploadError {}
+
+impl From<io::Error> for UploadError {
+    fn from(e: io::Error) -> Self {
+        Self::Io(e)
+    }
+}
+
+/// One line per refusal code: what happened and what to fix (the table in docs/protocol.md).
+pub fn refusal_hint(code: u8, detail: u8, value: u32) -> String {
+    use upload_code::*;
+    match code {
+        NOT_STARTED => "device refused: no upload in progress (it was restarted or a commit was refused): run the upload again".into(),
+        ARMED => "device refused: flagging is armed: send release first (add --release) while the hand is open".into(),
+        WRONG_SIZE => format!(
+            "device refused: blob size is 0, not a multiple of 4, or over the slot's {value} bytes: export a smaller model"
+        ),
+        OUT_OF_ORDER => format!("device refused: chunk out of order (expects offset {value}): run the upload again"),
+        BAD_CHUNK => format!("device refused: chunk CRC mismatch at offset {value} after retries: check the cable and the baud rate"),
+        CHUNK_LENGTH => format!("device refused: chunk past the announced size at offset {value}: the file changed during the upload"),
+        FLASH => format!(
+            "device refused: flash {} failed at offset {value}: retry; if it persists the model sector is worn",
+            match detail {
+                1 => "erase",
+                2 => "write",
+                _ => "read-back",
+            }
+        ),
+        INCOMPLETE => format!("device refused: commit after {value} bytes, blob incomplete: run the upload again"),
+        BLOB_CRC => format!("device refused: the blob arrived with CRC {value:#010x}, not the file's: run the upload again"),
+        BAD_BLOB => format!(
+            "device refused: the blob does not parse (blob error {detail}, value {value}, see docs/protocol.md): re-export the model with slipguard-export"
+        ),
+        RATE_MISMATCH => format!(
+            "device refused: the model runs at {:.1} Hz, a rate this firmware's sensor profile does not run: train and export at the profile's rate (info shows it)",
+            value as f64 / 1000.0
+        ),
+        UNIT_MISMATCH => format!(
+            "device refused: the model takes {} but the sensor profile delivers the other unit: export with --input-unit for this profile",
+            if value == 0 { "mN" } else { "counts" }
+        ),
+        UNSUPPORTED => "device refused: this firmware build has no model flash: flash the board firmware".into(),
+        c => format!("device refused with unknown code {c} (detail {detail}, value {value}): update slipguard-export"),
+    }
+}
+
+/// What a successful upload reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Uploaded {
+    /// Slot now active.
+    pub slot: u8,
+    /// Its sequence number.
+    pub seq: u32,
+    /// The device's info after the upload.
+    pub info: Info,
+    /// Chunks resent (lost or damaged frames).
+    pub resent: u32,
+}
+
+/// Upload settings.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    /// Send release before begin (the device refuses an upload while armed).
+    pub release: bool,
+    /// Reply timeout for chunks and commit.
+    pub timeout: Duration,
+    /// Reply timeout for begin (erasing a 128 KiB sector takes up to 2 s).
+    pub erase_timeout: Duration,
+    /// Resends of one command before giving up.
+    pub retries: u32,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            release: false,
+            timeout: Duration::from_millis(500),
+            erase_timeout: Duration::from_secs(5),
+            retries: 5,
+        }
+    }
+}
+
+/// A serial link to the device: writes go out, reads return what arrived (a read timeout is
+/// an `io::ErrorKind::TimedOut` or `WouldBlock`, as serialport's).
+pub struct Link<P> {
+    port: P,
+    deframer: Deframer,
+    seq: u16,
+}
+
+/// A reply or an error frame answering one command.
+enum Answer {
+    Reply(ReplyStatus, ReplyBody),
+    /// The device rejected the frame (damaged on the wire).
+    Rejected,
+}
+
+impl<P: Read + Write> Link<P> {
+    /// Wraps an open port.
+    pub fn new(port: P) -> Self {
+        Self {
+            port,
+            deframer: Deframer::new(),
+            seq: 0x4000,
+        }
+    }
+
+    /// The port.
+    pub fn into_inner(self) -> P {
+        self.port
+    }
+
+    fn send(&mut self, c: Command) -> Result<u16, UploadError> {
+        self.seq = self.seq.wrapping_add(1);
+        let mut w = [0u8; MAX_WIRE];
+        let n = protocol::encode(
+            &Frame {
+                seq: self.seq,
+                msg: Message::Command(c),
+            },
+            &mut w,
+        );
+        self.port.write_all(&w[..n])?;
+        self.port.flush()?;
+        Ok(self.seq)
+    }
+
+    /// Waits for the answer to command `seq` of type `t`, skipping the stream; `None` on
+    /// timeout.
+    fn wait(&mut self, seq: u16, t: u8, timeout: Duration) -> Result<Option<Answer>, UploadError> {
+        let end = Instant::now() + timeout;
+        let mut buf = [0u8; 256];
+        while Instant::now() < end {
+            let n = match self.port.read(&mut buf) {
+                Ok(n) => n,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock
+                    ) =>
+                {
+                    0
+                }
+                Err(e) => return Err(e.into()),
+            };
+            for &b in &buf[..n] {
+                match self.deframer.push_decode(b) {
+                    Some(Ok(Frame {
+                        msg: Message::Reply(r),
+                        ..
+                    })) if r.request_seq == seq && r.body.msg_type() == t | msg_type::REPLY => {
+                        return Ok(Some(Answer::Reply(r.status, r.body)));
+                    }
+                    Some(Ok(Frame {
+                        msg: Message::Error(e),
+                        ..
+                    })) if e.request_seq == seq || e.request_seq == 0xFFFF => {
+                        return Ok(Some(Answer::Rejected));
+                    }
+                    _ => {}
+                }
+            }
+        }
+        Ok(None)
+    }
+
+    /// Sends `c` until it is answered (resending on a rejected frame or a timeout).
+    fn call(
+        &mut self,
+        c: Command,
+        what: &'static str,
+        timeout: Duration,
+        retries: u32,
+        resent: &mut u32,
+    ) -> Result<(ReplyStatus, ReplyBody), UploadError> {
+        for attempt in 0..=retries {
+            if attempt > 0 {
+                *resent += 1;
+            }
+            let seq = self.send(c)?;
+            match self.wait(seq, c.msg_type(), timeout)? {
+                Some(Answer::Reply(s, b)) => return Ok((s, b)),
+                Some(Answer::Rejected) | None => continue,
+            }
+        }
+        Err(UploadError::NoReply { what })
+    }
+
+    /// The device's info.
+    pub fn info(&mut self, timeout: Duration) -> Result<Info, UploadError> {
+        let mut resent = 0;
+        match self.call(Command::Info, "info", timeout, 3, &mut resent)? {
+            (_, ReplyBody::Info(i)) => Ok(i),
+            _ => Err(UploadError::NoReply { what: "info" }),
+        }
+    }
+
+    /// Uploads `blob`; `progress` gets (bytes acknowledged, total).
+    pub fn upload(
+        &mut self,
+        blob: &[u8],
+        opt: &Options,
+        mut progress: impl FnMut(usize, usize),
+    ) -> Result<Uploaded, UploadError> {
+        let aligned = slipguard_core::blob::AlignedBlob::new(blob);
+        let parsed =
+            ModelBlob::parse(aligned.as_bytes()).map_err(|e| UploadError::Blob(e.to_string()))?;
+        let fingerprint = parsed.crc;
+        let mut resent = 0;
+        if opt.release {
+            self.call(
+                Command::Release,
+                "release",
+                opt.timeout,
+                opt.retries,
+                &mut resent,
+            )?;
+        }
+        let upload_reply = |r: (ReplyStatus, ReplyBody)| match r.1 {
+            ReplyBody::Upload {
+                code,
+                detail,
+                slot,
+                value,
+                ..
+            } => Ok((code, detail, slot, value)),
+            _ => Err(UploadError::NoReply { what: "upload" }),
+        };
+        let begin = Command::UploadBegin {
+            size: blob.len() as u32,
+            crc: CRC32.checksum(blob),
+        };
+        let (code, detail, _, value) = upload_reply(self.call(
+            begin,
+            "upload begin",
+            opt.erase_timeout,
+            opt.retries,
+            &mut resent,
+        )?)?;
+        if code != upload_code::OK {
+            return Err(UploadError::Refused {
+                code,
+                detail,
+                value,
+            });
+        }
+        let mut offset = 0usize;
+        let mut tries = 0;
+        while offset < blob.len() {
+            let end = (offset + MAX_CHUNK).min(blob.len());
+            let chunk = Command::UploadChunk(Chunk::new(offset as u32, &blob[offset..end]));
+            let (code, detail, _, value) = upload_reply(self.call(
+                chunk,
+                "upload chunk",
+                opt.timeout,
+                opt.retries,
+                &mut resent,
+            )?)?;
+            match code {
+                upload_code::OK => {
+                    offset = value as usize;
+                    tries = 0;
+                    progress(offset, blob.len());
+                }
+                // A resent chunk the device already has, or a chunk damaged in between:
+                // resume where the device says.
+                upload_code::OUT_OF_ORDER | upload_code::BAD_CHUNK if tries < opt.retries => {
+                    tries += 1;
+                    resent += 1;
+                    offset = value as usize;
+                }
+                _ => {
+                    return Err(UploadError::Refused {
+                        code,
+                        detail,
+                        value,
+                    });
+                }
+            }
+        }
+        let (code, detail, slot, value) = upload_reply(self.call(
+            Command::UploadCommit,
+            "upload commit",
+            opt.erase_timeout,
+            opt.retries,
+            &mut resent,
+        )?)?;
+        let info = self.info(opt.timeout)?;
+        // A commit resent after its reply was lost finds no upload in progress: the info says
+        // whether the first one took.
+        let took = code == upload_code::NOT_STARTED && info.model_crc == fingerprint;
+        if code != upload_code::OK && !took {
+            return Err(UploadError::Refused {
+                code,
+                detail,
+                value,
+            });
+        }
+        if info.model_ok != 1 || info.model_crc != fingerprint {
+            return Err(UploadError::NotActive {
+                running: info.model_crc,
+                sent: fingerprint,
+            });
+        }
+        Ok(Uploaded {
+            slot,
+            seq: value,
+            info,
+            resent,
+        })
+    }
+}
