@@ -169,7 +169,7 @@ pub fn select(flash: &impl Flash, profile: &Profile) -> Option<Active> {
 }
 
 /// The blob bytes of the active slot (empty without one), for [`App::new`] or [`App::reload`].
-pub fn blob<'f>(flash: &'f impl Flash, active: Option<Active>) -> &'f [u8] {
+pub fn blob(flash: &impl Flash, active: Option<Active>) -> &[u8] {
     active
         .and_then(|a| flash.read(a.slot).get(..a.len))
         .unwrap_or(&[])
@@ -283,7 +283,7 @@ impl Uploader {
         }
         // A restart abandons any upload in progress.
         self.job = None;
-        if size == 0 || size > capacity || size as usize % WRITE_ALIGN != 0 {
+        if size == 0 || size > capacity || !(size as usize).is_multiple_of(WRITE_ALIGN) {
             return Err((upload_code::WRONG_SIZE, 0, capacity));
         }
         let slot = self.target();
@@ -310,7 +310,7 @@ impl Uploader {
             return Err((upload_code::OUT_OF_ORDER, 0, job.next));
         }
         let end = job.next as usize + data.len();
-        if end > job.size as usize || data.len() % WRITE_ALIGN != 0 {
+        if end > job.size as usize || !data.len().is_multiple_of(WRITE_ALIGN) {
             return Err((upload_code::CHUNK_LENGTH, 0, job.next));
         }
         flash
@@ -461,7 +461,7 @@ impl Flash for SimFlash<'_> {
     }
 
     fn write(&mut self, slot: u8, offset: usize, data: &[u8]) -> Result<(), FlashError> {
-        if offset % WRITE_ALIGN != 0 || data.len() % WRITE_ALIGN != 0 {
+        if !offset.is_multiple_of(WRITE_ALIGN) || !data.len().is_multiple_of(WRITE_ALIGN) {
             return Err(FlashError::Write);
         }
         let half = self.op()?;

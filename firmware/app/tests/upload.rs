@@ -245,7 +245,7 @@ fn cut_upload(start: &Board, cut: usize) -> (Board, Option<Active>, usize) {
         );
     }
     let ops = flash.ops;
-    drop(flash);
+
     let booted = upload::select(&board.flash(), &HAND);
     (board, booted, ops)
 }
@@ -288,7 +288,6 @@ fn upload_power_cut_at_every_write_boots_a_valid_model() {
             assert!(App::new(HAND, ram.as_bytes()).model().is_ok(), "cut {cut}");
             // After the reboot a fresh upload completes (every 64th cut, for time).
             if cut % 64 == 0 {
-                drop(flash);
                 let mut flash = board.flash();
                 let mut app = App::new(HAND, ram.as_bytes());
                 released(&mut app);
