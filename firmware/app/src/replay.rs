@@ -264,3 +264,131 @@ pub mod cheez_script {
         },
     ];
 }
+
+/// The field scenario the QEMU comparison also runs: the sample stream on, the phase commands,
+/// an upload of a second model into the flash's free slot while the frames go on, and a grasp
+/// start on the new model. [`field_script::commands`] gives the command bytes before each frame;
+/// [`run_field`] is the host side.
+pub mod field_script {
+    use slipguard_core::protocol::{
+        self, Chunk, Command, Frame, MAX_CHUNK, MAX_WIRE, Message, StreamMode,
+    };
+
+    /// Stream mode flags + samples before this frame.
+    pub const STREAM_AT: u32 = 0;
+    /// Grasp start (the trial's label).
+    pub const GRASP_AT: u32 = 52;
+    /// Lift.
+    pub const LIFT_AT: u32 = 87;
+    /// Release (an upload needs flagging off).
+    pub const RELEASE_AT: u32 = 300;
+    /// Upload begin; the chunks follow from the next frame on.
+    pub const UPLOAD_AT: u32 = 301;
+    /// Chunks before each frame (about what a stop-and-wait host gets through in a period).
+    pub const CHUNKS_PER_FRAME: u32 = 8;
+    /// Grasp start on the new model.
+    pub const GRASP_AGAIN_AT: u32 = 390;
+
+    /// The frame the commit precedes, for a blob of `len` bytes.
+    pub const fn commit_at(len: usize) -> u32 {
+        let chunks = len.div_ceil(MAX_CHUNK) as u32;
+        UPLOAD_AT + 1 + chunks.div_ceil(CHUNKS_PER_FRAME)
+    }
+
+    /// Calls `sink` with the wire bytes of each command scheduled before frame `frame`, when
+    /// `upload` is the blob sent (command seq numbers from 1 in script order).
+    pub fn commands(frame: u32, upload: &[u8], mut sink: impl FnMut(&[u8])) {
+        let mut send = |seq: u32, c: Command| {
+            let mut w = [0u8; MAX_WIRE];
+            let n = protocol::encode(
+                &Frame {
+                    seq: seq as u16,
+                    msg: Message::Command(c),
+                },
+                &mut w,
+            );
+            sink(&w[..n]);
+        };
+        let chunks = upload.len().div_ceil(MAX_CHUNK) as u32;
+        match frame {
+            STREAM_AT => send(1, Command::StreamMode(StreamMode::FlagsAndSamples)),
+            GRASP_AT => send(2, Command::GraspStart),
+            LIFT_AT => send(3, Command::Lift),
+            RELEASE_AT => send(4, Command::Release),
+            UPLOAD_AT => send(
+                5,
+                Command::UploadBegin {
+                    size: upload.len() as u32,
+                    crc: slipguard_core::blob::CRC32.checksum(upload),
+                },
+            ),
+            GRASP_AGAIN_AT => send(7 + chunks, Command::GraspStart),
+            f if f == commit_at(upload.len()) => send(6 + chunks, Command::UploadCommit),
+            f if f > UPLOAD_AT => {
+                let first = (f - UPLOAD_AT - 1) * CHUNKS_PER_FRAME;
+                for i in first..(first + CHUNKS_PER_FRAME).min(chunks) {
+                    let at = i as usize * MAX_CHUNK;
+                    let end = (at + MAX_CHUNK).min(upload.len());
+                    send(
+                        6 + i,
+                        Command::UploadChunk(Chunk::new(at as u32, &upload[at..end])),
+                    );
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+/// Runs `trial` through the firmware path with the field script: the app starts on the model
+/// `flash` selects at boot (its RAM copy `model`, as the firmware copies it), `second` is
+/// uploaded into the other slot, and after the commit the app reloads from `second_ram` (its
+/// RAM copy; the flash contents must equal it, else the app reloads without a model). Every
+/// frame goes to `sink` as wire bytes; returns (frames sent, frame index of the reload).
+pub fn run_field<F: crate::upload::Flash>(
+    profile: Profile,
+    model: &[u8],
+    second_ram: &[u8],
+    flash: &mut F,
+    trial: &Trial<'_>,
+    mut sink: impl FnMut(&[u8]),
+) -> (usize, Option<u32>) {
+    let mut app = App::new(profile, model);
+    let mut up = crate::upload::Uploader::new(crate::upload::select(flash, &profile));
+    let mut frontend = Frontend::new(profile);
+    let mut sensor = EmulatedSensor::new(profile);
+    let mut deframer = Deframer::new();
+    let mut sent = 0;
+    let mut reloaded = None;
+    let mut buf = [0u8; MAX_WIRE];
+    let mut scan = [0u16; MAX_CHANNELS];
+    for step in 0..trial.steps() {
+        for _ in 0..RATIO {
+            sensor.scan(trial, step, &mut scan);
+            let Some(input) = frontend.push_scan(&scan) else {
+                continue;
+            };
+            let mut reload = None;
+            field_script::commands(input.index, second_ram, |bytes| {
+                let r =
+                    crate::upload::receive(&mut up, &mut app, flash, &mut deframer, bytes, |f| {
+                        let n = wire(f, &mut buf);
+                        sink(&buf[..n]);
+                        sent += 1;
+                    });
+                reload = reload.or(r);
+            });
+            if let Some(a) = reload {
+                let same = crate::upload::blob(flash, Some(a)) == second_ram;
+                app = app.reload(if same { second_ram } else { &[] });
+                reloaded = Some(input.index);
+            }
+            app.frames(&input, false, |f| {
+                let n = wire(f, &mut buf);
+                sink(&buf[..n]);
+                sent += 1;
+            });
+        }
+    }
+    (sent, reloaded)
+}

@@ -575,113 +575,42 @@ fn upload_into_a_board_without_a_usable_model() {
     assert_eq!(app.rate_mhz(), 40_000);
 }
 
-/// The field script on a recorded trial: sample stream on, grasp start, lift, release, then an
-/// upload of another model while the frames go on, a grasp start, and the flags come from the
-/// new model (equal to a fresh app on it after the same grasp start, unlike the old one's).
+/// The field script on a recorded trial (`replay::run_field`, the host side of the QEMU
+/// comparison): sample stream on, grasp start, lift, release, then an upload of another model
+/// while the frames go on, a grasp start, and the flags come from the new model (equal to an app
+/// that ran it all along after the same grasp start, unlike the old one's).
 #[test]
 fn upload_during_a_replayed_trial_then_flags_from_the_new_model() {
-    use slipguard_app::decimate::RATIO;
-    use slipguard_app::frontend::Frontend;
-    use slipguard_app::replay::{CHEEZ_TRIAL, EmulatedSensor};
-    use slipguard_core::protocol::{Flags, StreamMode};
+    use slipguard_app::replay::{self, CHEEZ_TRIAL, field_script};
+    use slipguard_core::protocol::Flags;
 
     const SECOND: &[u8] = include_bytes!("../../../models/hand-force/hand-force.bin");
-    const UPLOAD_AT: u32 = 301;
-    const CHUNKS_PER_FRAME: usize = 8;
-    const GRASP_AGAIN: u32 = 390;
-
-    // Commands scheduled before frames: (frame, command).
-    let mut script: Vec<(u32, Command)> = vec![
-        (0, Command::StreamMode(StreamMode::FlagsAndSamples)),
-        (52, Command::GraspStart),
-        (87, Command::Lift),
-        (300, Command::Release),
-        (
-            UPLOAD_AT,
-            Command::UploadBegin {
-                size: SECOND.len() as u32,
-                crc: crc(SECOND),
-            },
-        ),
-    ];
-    let chunks: Vec<Command> = SECOND
-        .chunks(MAX_CHUNK)
-        .enumerate()
-        .map(|(i, c)| Command::UploadChunk(Chunk::new((i * MAX_CHUNK) as u32, c)))
-        .collect();
-    let n_frames = chunks.len().div_ceil(CHUNKS_PER_FRAME) as u32;
-    for (i, c) in chunks.into_iter().enumerate() {
-        script.push((UPLOAD_AT + 1 + (i / CHUNKS_PER_FRAME) as u32, c));
-    }
-    let commit_at = UPLOAD_AT + 1 + n_frames;
-    script.push((commit_at, Command::UploadCommit));
-    script.push((GRASP_AGAIN, Command::GraspStart));
-    assert!(commit_at < GRASP_AGAIN);
-
-    let run = |with_upload: bool, model: &[u8]| -> (Vec<Frame>, Option<u32>) {
+    let run = |model: &[u8], second: &[u8]| -> (Vec<Frame>, Option<u32>) {
         let mut board = Board::factory();
         let mut flash = board.flash();
         let ram = AlignedBlob::new(model);
-        let ram2 = AlignedBlob::new(SECOND);
-        let mut app = App::new(HAND, ram.as_bytes());
-        let mut up = Uploader::new(upload::select(&flash, &HAND));
-        let mut frontend = Frontend::new(HAND);
-        let mut sensor = EmulatedSensor::new(HAND);
-        let mut deframer = Deframer::new();
-        let mut scan = [0u16; 16];
-        let mut out = Vec::new();
-        let mut reloaded_at = None;
-        for step in 0..CHEEZ_TRIAL.steps() {
-            for _ in 0..RATIO {
-                sensor.scan(&CHEEZ_TRIAL, step, &mut scan);
-                let Some(input) = frontend.push_scan(&scan) else {
-                    continue;
-                };
-                for (_, c) in script.iter().filter(|(f, c)| {
-                    *f == input.index && (with_upload || !upload::is_upload(c.msg_type()))
-                }) {
-                    let mut w = [0u8; MAX_WIRE];
-                    let n = protocol::encode(
-                        &Frame {
-                            seq: 7,
-                            msg: Message::Command(*c),
-                        },
-                        &mut w,
-                    );
-                    let reload = upload::receive(
-                        &mut up,
-                        &mut app,
-                        &mut flash,
-                        &mut deframer,
-                        &w[..n],
-                        |f| out.push(*f),
-                    );
-                    if let Some(a) = reload {
-                        assert_eq!(upload::blob(&flash, Some(a)), SECOND);
-                        app = app.reload(ram2.as_bytes());
-                        reloaded_at = Some(input.index);
-                    }
-                }
-                app.frames(&input, false, |f| out.push(*f));
-            }
-        }
-        (out, reloaded_at)
+        let ram2 = AlignedBlob::new(second);
+        let mut bytes = Vec::new();
+        let (n, reloaded) = replay::run_field(
+            HAND,
+            ram.as_bytes(),
+            ram2.as_bytes(),
+            &mut flash,
+            &CHEEZ_TRIAL,
+            |b| bytes.extend_from_slice(b),
+        );
+        let mut d = Deframer::new();
+        let frames: Vec<Frame> = bytes
+            .iter()
+            .filter_map(|&b| d.push_decode(b))
+            .map(|r| r.unwrap())
+            .collect();
+        assert_eq!(frames.len(), n);
+        (frames, reloaded)
     };
-    let flags_from = |frames: &[Frame], from: u32| -> Vec<Flags> {
-        let mut k = 0u32;
-        let mut v = Vec::new();
-        for f in frames {
-            if let Message::Flags(x) = f.msg {
-                if k >= from {
-                    v.push(x);
-                }
-                k += 1;
-            }
-        }
-        v
-    };
-    let (field, reloaded_at) = run(true, FACTORY);
-    assert_eq!(reloaded_at, Some(commit_at));
+    let (field, reloaded) = run(FACTORY, SECOND);
+    assert_eq!(reloaded, Some(field_script::commit_at(SECOND.len())));
+    assert!(reloaded.unwrap() < field_script::GRASP_AGAIN_AT);
     // Every upload command answered OK; seq numbers run on across the reload.
     let codes: Vec<u8> = field
         .iter()
@@ -698,21 +627,29 @@ fn upload_during_a_replayed_trial_then_flags_from_the_new_model() {
     for (i, f) in field.iter().enumerate() {
         assert_eq!(f.seq, i as u16);
     }
-    let new_ref = run(false, SECOND).0;
-    let old_ref = run(false, FACTORY).0;
-    let after = |v: &[Frame]| flags_from(v, GRASP_AGAIN);
-    let p = |v: Vec<Flags>| -> Vec<[u16; 16]> { v.iter().map(|f| f.p).collect() };
+    let after = |v: &[Frame]| -> Vec<[u16; 16]> {
+        v.iter()
+            .filter_map(|f| match f.msg {
+                Message::Flags(x) => Some(x),
+                _ => None,
+            })
+            .skip(field_script::GRASP_AGAIN_AT as usize)
+            .map(|f: Flags| f.p)
+            .collect()
+    };
+    let new_ref = run(SECOND, SECOND).0;
+    let old_ref = run(FACTORY, FACTORY).0;
     assert_eq!(after(&field).len(), 10);
-    assert_eq!(
-        p(after(&field)),
-        p(after(&new_ref)),
-        "flags from the new model"
-    );
-    assert_ne!(p(after(&field)), p(after(&old_ref)), "not from the old one");
-    // The sample stream went on through the upload.
-    let samples = field
+    assert_eq!(after(&field), after(&new_ref), "flags from the new model");
+    assert_ne!(after(&field), after(&old_ref), "not from the old one");
+    // The sample stream went on through the upload, with its three marks.
+    let marks: Vec<u8> = field
         .iter()
-        .filter(|f| matches!(f.msg, Message::Samples(_)))
-        .count();
-    assert_eq!(samples, 400);
+        .filter_map(|f| match f.msg {
+            Message::Samples(s) => Some(s.marks),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(marks.len(), 400);
+    assert_eq!(marks.iter().filter(|&&m| m != 0).count(), 4);
 }
