@@ -9,6 +9,9 @@
 #    region in place of the built-in one (as re-flashing sector 11 would), where both sides must
 #    send fault frames and no flags.
 # 4. Decodes the QEMU frames with the C decoder (host-tools/c).
+# 5. The field script (qemu-app feature `field`): sample stream on, grasp start, lift, release,
+#    an upload of the golden test model into a RAM-backed model slot while the frames go on,
+#    grasp start on it; compared with the host side (`replay_field` example), then C-decoded.
 # Exit status 0 when both comparisons match, 1 on a mismatch, else the failing command's status.
 # Works from any directory. Env: QEMU_REPLAY_TIMEOUT (seconds, default 300), KEEP_DIR=1 keeps the files.
 set -euo pipefail
@@ -88,3 +91,19 @@ if grep -q '^bad' "$work/qemu-c.txt" || [ "$n_flags" != 400 ]; then
   exit 1
 fi
 echo "qemu-replay: C decoder: $(wc -l <"$work/qemu-c.txt") frames of the QEMU build decoded ($n_flags flag frames)"
+
+# 5. The field script: sample stream, phase marks, an upload into the RAM-backed free slot, then
+#    flags from the uploaded model.
+(cd "$root/firmware/qemu-app" && cargo build --release --features field)
+qemu "$elf"
+mv "$work/qemu-frames.bin" "$work/qemu-field.bin"
+(cd "$root" && cargo run -q -p slipguard-app --example replay_field -- "$model" "$golden") >"$work/host-field.bin"
+compare "field script (samples, upload, new model)" "$work/host-field.bin" "$work/qemu-field.bin"
+"$work/test_decode" <"$work/qemu-field.bin" >"$work/qemu-field-c.txt"
+n_samples="$(grep -c '^samples' "$work/qemu-field-c.txt" || true)"
+n_marks="$(grep -c '^samples.* marks=[1-7] ' "$work/qemu-field-c.txt" || true)"
+if grep -q '^bad' "$work/qemu-field-c.txt" || [ "$n_samples" != 400 ] || [ "$n_marks" != 4 ]; then
+  echo "qemu-replay: C decoder on the field frames: $n_samples samples frames, $n_marks marked" >&2
+  exit 1
+fi
+echo "qemu-replay: C decoder: field script, $n_samples samples frames, $n_marks phase marks"

@@ -9,6 +9,10 @@
 //! and the model blob in its own `.model` section read back through the region's address are the
 //! firmware's. `scripts/qemu-replay.sh` compares the file with the host replay byte for byte.
 //!
+//! With the `field` feature the command script is `slipguard_app::replay::field_script` (sample
+//! stream, phase commands, an upload of a second model into a RAM-backed flash slot), compared
+//! with `replay_field`, the host side.
+//!
 //! Stdout (semihosting) gets a text log and the instruction counts per frame; exit status 0 when
 //! the run completed, 101 on a panic.
 #![no_std]
@@ -27,8 +31,9 @@ use slipguard_app::app::App;
 use slipguard_app::decimate::RATIO;
 use slipguard_app::frontend::{FrameInput, Frontend};
 use slipguard_app::profile::Profile;
-use slipguard_app::replay::{self, CHEEZ_TRIAL, EmulatedSensor, cheez_script};
+use slipguard_app::replay::{self, CHEEZ_TRIAL, EmulatedSensor};
 use slipguard_app::schedule::Deadline;
+use slipguard_app::upload::{self, SimFlash, Uploader};
 use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
 use static_cell::StaticCell;
 
@@ -50,6 +55,31 @@ enum Event {
 
 static EVENTS: Channel<CriticalSectionRawMutex, Event, 4> = Channel::new();
 static APP: StaticCell<App<'static>> = StaticCell::new();
+/// The two model slots in RAM (128 KiB each, as the F405's sectors 10 and 11).
+static SLOT0: StaticCell<[u32; 128 * 1024 / 4]> = StaticCell::new();
+static SLOT1: StaticCell<[u32; 128 * 1024 / 4]> = StaticCell::new();
+
+/// The blob the field script uploads (the golden test model).
+#[cfg(feature = "field")]
+static SECOND: Aligned<[u8; SECOND_LEN]> =
+    Aligned(*include_bytes!("../../core/tests/fixtures/bench/model.bin"));
+#[cfg(feature = "field")]
+const SECOND_LEN: usize = include_bytes!("../../core/tests/fixtures/bench/model.bin").len();
+
+/// The command bytes scheduled before frame `index`.
+fn script_bytes(index: u32, out: &mut heapless::Vec<u8, 2048>) {
+    #[cfg(feature = "field")]
+    replay::field_script::commands(index, &SECOND.0, |b| {
+        let _ = out.extend_from_slice(b);
+    });
+    #[cfg(not(feature = "field"))]
+    for item in replay::cheez_script::SCRIPT
+        .iter()
+        .filter(|s| s.before_frame == index)
+    {
+        let _ = out.extend_from_slice(item.bytes);
+    }
+}
 /// Frames the ADC side could not queue (none here: the emulation waits instead).
 static SKIPPED: AtomicU32 = AtomicU32::new(0);
 
@@ -82,7 +112,10 @@ impl HostFile {
 #[embassy_executor::task]
 async fn adc_task() {
     let mut frontend = Frontend::new(PROFILE);
-    let mut sensor = EmulatedSensor::with_open_wires(PROFILE, cheez_script::OPEN_WIRES);
+    #[cfg(not(feature = "field"))]
+    let mut sensor = EmulatedSensor::with_open_wires(PROFILE, replay::cheez_script::OPEN_WIRES);
+    #[cfg(feature = "field")]
+    let mut sensor = EmulatedSensor::new(PROFILE);
     let mut scan = [0u16; 16];
     for step in 0..CHEEZ_TRIAL.steps() {
         for _ in 0..RATIO {
@@ -90,14 +123,11 @@ async fn adc_task() {
             let Some(input) = frontend.push_scan(&scan) else {
                 continue;
             };
-            for item in cheez_script::SCRIPT
-                .iter()
-                .filter(|s| s.before_frame == input.index)
-            {
-                for chunk in item.bytes.chunks(32) {
-                    let v = heapless::Vec::from_slice(chunk).unwrap_or_default();
-                    EVENTS.send(Event::Rx(v)).await;
-                }
+            let mut bytes = heapless::Vec::new();
+            script_bytes(input.index, &mut bytes);
+            for chunk in bytes.chunks(32) {
+                let v = heapless::Vec::from_slice(chunk).unwrap_or_default();
+                EVENTS.send(Event::Rx(v)).await;
             }
             EVENTS
                 .send(Event::Frame(input, Instant::now().as_micros()))
@@ -133,6 +163,14 @@ impl Stats {
 async fn main(spawner: Spawner) {
     let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
     time_driver::init(cp.SYST);
+    // RAM-backed model slots: the image's model in the factory slot, the other one erased.
+    let slot0 = SLOT0.init([u32::MAX; 128 * 1024 / 4]);
+    let slot1 = SLOT1.init([u32::MAX; 128 * 1024 / 4]);
+    for (w, b) in slot1.iter_mut().zip(model_region().chunks_exact(4)) {
+        *w = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+    }
+    let mut flash = SimFlash::new(slot0, slot1);
+    let mut uploader = Uploader::new(upload::select(&flash, &PROFILE));
     let app = APP.init_with(|| App::new(PROFILE, model_region()));
     match app.model() {
         Ok(m) => {
@@ -166,10 +204,27 @@ async fn main(spawner: Spawner) {
     let mut skipped_seen = 0;
     loop {
         match EVENTS.receive().await {
-            Event::Rx(bytes) => replay::receive(app, &mut deframer, &bytes, |f| {
-                out.frame(f);
-                frames += 1;
-            }),
+            Event::Rx(bytes) => {
+                let reload =
+                    upload::receive(&mut uploader, app, &mut flash, &mut deframer, &bytes, |f| {
+                        out.frame(f);
+                        frames += 1;
+                    });
+                if let Some(a) = reload {
+                    hprintln!(
+                        "slipguard-qemu-app: new model in slot {} (sequence {})",
+                        a.slot,
+                        a.seq
+                    );
+                    // The firmware restarts here; the emulation reloads in place from the RAM
+                    // copy of what was sent, as `replay::run_field` does.
+                    #[cfg(feature = "field")]
+                    {
+                        let same = upload::blob(&flash, Some(a)) == &SECOND.0[..];
+                        app.reload_in_place(if same { &SECOND.0 } else { &[] });
+                    }
+                }
+            }
             Event::Frame(input, available_us) => {
                 let skipped = SKIPPED.load(Ordering::Relaxed);
                 while skipped_seen != skipped {
@@ -180,6 +235,10 @@ async fn main(spawner: Spawner) {
                 let r = app.infer(&input);
                 let c1 = time_driver::cycles();
                 let late = deadline.is_late(available_us, Instant::now().as_micros());
+                if let Some(f) = app.emit_samples(&r, late) {
+                    out.frame(&f);
+                    frames += 1;
+                }
                 if let Some(f) = app.emit(&r, late) {
                     out.frame(&f);
                     frames += 1;
