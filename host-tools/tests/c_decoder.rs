@@ -361,6 +361,27 @@ fn sample_stream_decodes_identically() {
     }
     assert!(samples.iter().all(|l| l.contains(" n=16 unit=0 ")));
     assert!(samples.iter().any(|l| l.contains(" fault=16384 "))); // channel 14's open wire
+    // The longest run either deframer keeps is MAX_WIRE - 1 = 145 bytes (an upload chunk);
+    // 145 garbage bytes are a bad frame, 146 an overflow, and both resynchronise.
+    assert_eq!(MAX_WIRE, 146);
+    let chunk = enc(
+        5,
+        Cmd::UploadChunk(protocol::Chunk::new(0, &[0x5A; protocol::MAX_CHUNK])),
+    );
+    assert_eq!(chunk.len(), MAX_WIRE);
+    let mut s = chunk.clone();
+    for n in [145, 146, 300] {
+        s.extend(std::iter::repeat_n(0x11u8, n));
+        s.push(0);
+        s.extend_from_slice(&chunk);
+    }
+    let c = run_c(&[], &s);
+    assert_eq!(c, rust_lines(&s));
+    assert_eq!(
+        c.lines().filter(|l| l.starts_with("upload_chunk")).count(),
+        4
+    );
+    assert_eq!(c.lines().filter(|l| *l == "bad 3").count(), 2, "{c}");
 }
 
 #[test]

@@ -653,3 +653,68 @@ fn upload_during_a_replayed_trial_then_flags_from_the_new_model() {
     assert_eq!(marks.len(), 400);
     assert_eq!(marks.iter().filter(|&&m| m != 0).count(), 4);
 }
+
+/// Random upload commands (sizes, offsets, data, CRCs, commits) with power cuts: never a panic,
+/// never a write to the running slot, and the board always boots the factory model (random data
+/// never passes the commit's checks).
+#[test]
+fn upload_random_commands_and_cuts_never_lose_the_model() {
+    let mut x: u32 = 0xC0FF_EE11;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        x
+    };
+    for round in 0..40 {
+        let mut board = Board::factory();
+        let factory_slot = board.s1.clone();
+        {
+            let mut flash = board.flash();
+            if round % 2 == 1 {
+                flash.cut_at = Some((next() % 64) as usize);
+            }
+            let ram = AlignedBlob::new(FACTORY);
+            let mut app = App::new(HAND, ram.as_bytes());
+            released(&mut app);
+            let mut up = Uploader::new(upload::select(&flash, &HAND));
+            let size = [256u32, 1000, 4096, 0, 200_000][(next() % 5) as usize];
+            for _ in 0..200 {
+                let c = match next() % 10 {
+                    0 => Command::UploadBegin { size, crc: next() },
+                    1 => Command::UploadCommit,
+                    _ => {
+                        let len = 1 + (next() % MAX_CHUNK as u32) as usize;
+                        let data: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+                        let mut c =
+                            Chunk::new((next() % 8) * MAX_CHUNK as u32 * (next() % 2), &data);
+                        if next() % 4 == 0 {
+                            c.crc ^= 1;
+                        }
+                        Command::UploadChunk(c)
+                    }
+                };
+                let (r, o) = up.handle(
+                    &mut app,
+                    &mut flash,
+                    Ok(Frame {
+                        seq: 1,
+                        msg: Message::Command(c),
+                    }),
+                );
+                assert_eq!(o, Outcome::None);
+                assert!(matches!(r.msg, Message::Reply(_)));
+            }
+        }
+        assert_eq!(
+            board.s1, factory_slot,
+            "round {round}: the running slot was written"
+        );
+        let booted = upload::select(&board.flash(), &HAND);
+        assert_eq!(
+            booted.map(|a| (a.slot, a.seq)),
+            Some((FACTORY_SLOT, 0)),
+            "round {round}"
+        );
+    }
+}
