@@ -47,8 +47,9 @@ fi
 probes="$(probe-rs list 2>/dev/null || true)"
 if ! printf '%s\n' "$probes" | grep -q '^\['; then
   echo "cargo run: no debug probe found, so nothing was flashed (the firmware is built: $elf)." >&2
-  echo "cargo run: connect an SWD probe (ST-LINK, J-Link or CMSIS-DAP) to the board's SWDIO (PA13), SWCLK (PA14), GND and 3.3 V," >&2
-  echo "cargo run: power the board, check that \`probe-rs list\` shows the probe (on Linux, install probe-rs' udev rules), then run cargo run --release again." >&2
+  echo "cargo run: connect an SWD probe (ST-LINK, J-Link or CMSIS-DAP) to the board's SWDIO (PA13), SWCLK (PA14), GND and 3.3 V" >&2
+  echo "cargo run: (a Nucleo: plug in the USB of its on-board ST-LINK), power the board, check that \`probe-rs list\` shows the probe" >&2
+  echo "cargo run: (on Linux, install probe-rs' udev rules), then run cargo run --release again." >&2
 else
   echo "cargo run: probe-rs failed (status $status) with chip $chip on the probe(s) below:" >&2
   printf '%s\n' "$probes" >&2
