@@ -21,13 +21,13 @@ timeout_s="${QEMU_REPLAY_TIMEOUT:-300}"
 work="$(mktemp -d)"
 if [ "${KEEP_DIR:-0}" != 1 ]; then trap 'rm -rf "$work"' EXIT; else echo "qemu-replay: files in $work"; fi
 
-(cd "$root/firmware/qemu-app" && cargo build --release)
-elf="${CARGO_TARGET_DIR:-$root/firmware/qemu-app/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
+(cd "$root/firmware" && cargo build --release -p slipguard-qemu-app)
+elf="${CARGO_TARGET_DIR:-$root/firmware/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
 (cd "$root" && cargo build -q -p slipguard-host --bin slipguard)
 slipguard="${CARGO_TARGET_DIR:-$root/target}/debug/slipguard"
 trial="$root/firmware/app/fixtures/Cheez_100_814_top_3.csv"
 golden="$root/firmware/core/tests/fixtures/bench/model.bin"
-# The blob the build embeds, chosen by the same rule as firmware/build-model.rs.
+# The blob the build embeds, chosen by the same rule as firmware/support/build.rs.
 if [ -n "${SLIPGUARD_MODEL:-}" ]; then
   case "$SLIPGUARD_MODEL" in /*) model="$SLIPGUARD_MODEL" ;; *) model="$root/$SLIPGUARD_MODEL" ;; esac
 elif [ -f "$root/models/hand-force/hand-force.bin" ]; then
@@ -94,7 +94,7 @@ echo "qemu-replay: C decoder: $(wc -l <"$work/qemu-c.txt") frames of the QEMU bu
 
 # 5. The field script: sample stream, phase marks, an upload into the RAM-backed free slot, then
 #    flags from the uploaded model.
-(cd "$root/firmware/qemu-app" && cargo build --release --features field)
+(cd "$root/firmware" && cargo build --release -p slipguard-qemu-app --features field)
 qemu "$elf"
 mv "$work/qemu-frames.bin" "$work/qemu-field.bin"
 (cd "$root" && cargo run -q -p slipguard-app --example replay_field -- "$model" "$golden") >"$work/host-field.bin"

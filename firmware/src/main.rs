@@ -37,6 +37,7 @@ use slipguard_app::replay;
 use slipguard_app::schedule::Deadline;
 use slipguard_app::upload::{self, FlashError, Uploader};
 use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
+use slipguard_support::boot::ModelLine;
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
@@ -64,8 +65,8 @@ const BAUD: u32 = 921_600;
 /// the 2 s a model-slot erase (128 KiB sector) may stall the CPU during an upload.
 const WATCHDOG_US: u32 = 4_000_000;
 
-// The default model blob in the `.model` section and `model_region()`.
-include!("../model-region.rs");
+// The MODEL flash region (default blob in the `.model` section, re-flashable on its own).
+use slipguard_support::model::{DEFAULT_BLOB_LEN, region as model_region};
 
 /// Bytes per model slot: one 128 KiB flash sector.
 const SLOT_LEN: usize = 128 * 1024;
@@ -316,20 +317,13 @@ async fn main(spawner: Spawner) {
         .unwrap_or(&[]);
     let app = APP.init_with(|| App::new(PROFILE, blob));
     match app.model() {
-        Ok(m) => {
-            let c = m.config();
-            info!(
-                "model {:#010x} '{}' {} hidden {} at {} mHz, blob {} bytes CRC {:#010x} (built-in default {} bytes)",
-                c.model_id,
-                c.name_str(),
-                c.variant.name(),
-                c.hidden[0],
-                c.sample_rate_mhz,
-                m.blob().len,
-                m.blob().crc,
-                MODEL_BLOB.0.len()
-            );
-        }
+        Ok(m) => info!(
+            "{}",
+            ModelLine {
+                model: m,
+                default_blob_len: DEFAULT_BLOB_LEN
+            }
+        ),
         Err(e) => error!("model fault {}: no flags, a fault frame every second", e),
     }
 
