@@ -114,7 +114,14 @@ pub struct ExportOptions {
     pub cell_bits: Option<[u8; 2]>,
     /// No progress bars.
     pub quiet: bool,
+    /// Measure the agreement on the calibration data itself instead of holding out every
+    /// [`HOLDOUT_EVERY`]th trial (when there is no separate validation set).
+    pub no_holdout: bool,
 }
+
+/// Without `--validation`, every this-many-th trial of `--data` is held out of calibration and
+/// the agreement is measured on those trials.
+pub const HOLDOUT_EVERY: usize = 5;
 
 /// The result of an export (nothing written yet).
 #[derive(Clone, Debug)]
@@ -167,18 +174,29 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
             .push("--fit-norm ignored: the model carries its normalisation".into());
     }
     let model = loaded.model;
-    let seqs: Vec<&[f32]> = data
-        .as_ref()
-        .map(|d| d.sequences.iter().map(|s| s.samples.as_slice()).collect())
-        .unwrap_or_default();
-    let (blob, q, cal) = quantize_calibrated(&model, &seqs, opts.cell_bits, opts.quiet)?;
     let validation = match &opts.validation {
         Some(v) => Some(calib::load_data(v, &config, opts.max_trials, opts.quiet)?),
         None => None,
     };
-    let agree_set: Option<&DataSet> = validation.as_ref().or(data.as_ref());
+    // Without a validation set, every HOLDOUT_EVERY-th trial is held out of calibration and
+    // the agreement is measured on it (unless --no-holdout).
+    let split = match (&data, &validation, opts.no_holdout) {
+        (Some(d), None, false) => d.split_holdout(HOLDOUT_EVERY),
+        _ => None,
+    };
+    let cal_set: Option<&DataSet> = split.as_ref().map(|(c, _)| c).or(data.as_ref());
+    // Calibration runs over the whole recordings: the cell state a device reaches after the
+    // release is outside the labelled windows.
+    let seqs: Vec<&[f32]> = cal_set
+        .map(|d| d.recordings.iter().map(|s| s.samples.as_slice()).collect())
+        .unwrap_or_default();
+    let (blob, q, cal) = quantize_calibrated(&model, &seqs, opts.cell_bits, opts.quiet)?;
+    let agree_set: Option<&DataSet> = validation
+        .as_ref()
+        .or(split.as_ref().map(|(_, h)| h))
+        .or(data.as_ref());
     let agreement: Option<Agreement> = match agree_set {
-        Some(d) => Some(calib::agreement(&model, &blob, &d.sequences, opts.quiet)?),
+        Some(d) => Some(calib::agreement(&model, &blob, d, opts.quiet)?),
         None => None,
     };
     let aligned = AlignedBlob::new(&blob);
@@ -212,20 +230,24 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         notes,
         blob: describe_blob(&parsed),
         tensor_errors: tensor_errors(&model, &q),
-        calibration_data: data.as_ref().map(|d| {
+        calibration_data: cal_set.map(|d| {
             format!(
-                "{} ({} trials, {} unlabelled)",
-                d.source, d.trials, d.unlabelled
+                "{} ({} trials, {} unlabelled; whole recordings)",
+                d.source,
+                d.trials,
+                data.as_ref().map_or(0, |a| a.unlabelled)
             )
         }),
         calibration: data.as_ref().map(|_| cal),
         agreement_data: agree_set.map(|d| {
             format!(
-                "{} ({} trials){}",
+                "{} ({} trials; whole recordings){}",
                 d.source,
                 d.trials,
                 if validation.is_some() {
                     ", validation set"
+                } else if split.is_some() {
+                    ", held out of calibration"
                 } else {
                     ", the calibration set"
                 }
@@ -264,6 +286,20 @@ pub fn float_for_blob(
     src: &ModelSource,
     blob: &ModelBlob<'_>,
 ) -> Result<(FloatModel, Vec<String>)> {
+    // The checkpoint read with its own settings first: a checkpoint of another variant or size
+    // is a failed verification (exit 13), not a shape error of the blob's settings.
+    if let Ok(own) = load_float(src) {
+        let (f, b) = (&own.model.config, &blob.config);
+        if f.hidden != b.hidden || f.variant != b.variant {
+            return Err(ExportError::VerifyFailed(format!(
+                "the checkpoint is {} with hidden {:?}, the blob {} with hidden {:?}",
+                f.variant.name(),
+                &f.hidden[..own.model.lstms.len()],
+                b.variant.name(),
+                &b.hidden[..b.variant.lstm_count()]
+            )));
+        }
+    }
     let mut src = src.clone();
     let header: BTreeMap<String, String> = describe(&blob.config);
     let mut notes = Vec::new();

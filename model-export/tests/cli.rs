@@ -597,8 +597,8 @@ fn export_inspect_verify_end_to_end() {
             "2",
             "-q",
         ],
-        8,
-        "variant data-stft-lstm has 1",
+        13,
+        "the checkpoint is lstm-stft-lstm with hidden [8, 12], the blob data-stft-lstm with hidden [16]",
     );
 
     // A failed export over an existing blob leaves it untouched.

@@ -15,7 +15,7 @@ use safetensors::{Dtype, SafeTensors};
 use slipguard_core::float::FloatLstm;
 
 use super::{Format, Imported, NamedDense, NamedLstm, dims};
-use crate::error::{ExportError, Result};
+use crate::error::{ExportError, Result, check_finite_in};
 
 /// A tensor converted to f32.
 struct T {
@@ -80,6 +80,7 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
     let mut tensors: BTreeMap<String, T> = BTreeMap::new();
     for (name, view) in st.tensors() {
         let data = to_f32(&name, view.dtype(), view.data())?;
+        check_finite_in(&name, view.shape(), &data)?;
         tensors.insert(
             name,
             T {
@@ -90,8 +91,33 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
     }
     let names: Vec<String> = tensors.keys().cloned().collect();
     let (lstms, used) = find_lstms(&names, &tensors)?;
-    let (dense, dense_used) =
-        find_dense(&tensors, &used, lstms.iter().map(|l| l.lstm.hidden).sum())?;
+    let found = find_dense(&tensors, &used, lstms.iter().map(|l| l.lstm.hidden).sum());
+    // Parameters of layers that are neither the LSTMs nor the dense layer (a Linear → ReLU →
+    // Linear head, a LayerNorm, …): the network is not LSTM → one affine layer, refuse.
+    let dense_names: Vec<String> = match &found {
+        Ok((_, u)) => u.iter().cloned().collect(),
+        Err(_) => Vec::new(),
+    };
+    let extra: Vec<String> = names
+        .iter()
+        .filter(|n| !used.contains(*n) && !dense_names.contains(n))
+        .filter(|n| n.ends_with("weight") || n.ends_with("bias"))
+        .map(|n| format!("{n} {}", dims(&tensors[n].shape)))
+        .collect();
+    if !extra.is_empty() {
+        let head = match &found {
+            Ok((d, _)) => format!("`{}` {}", d.weight, dims(&[d.outputs, d.inputs])),
+            Err(_) => "no [2, K] output layer".into(),
+        };
+        return Err(ExportError::unsupported(
+            extra.join(", "),
+            format!(
+                "the head is not a single affine layer to 2 logits: besides the LSTM(s) the file has {head} and the layer parameters {}; the firmware runs LSTM → one Linear(K, 2) (an activation or a second layer between them cannot be converted)",
+                extra.join(", ")
+            ),
+        ));
+    }
+    let (dense, dense_used) = found?;
     let mut notes = Vec::new();
     let ignored: Vec<&String> = names
         .iter()
@@ -107,10 +133,19 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
                 .join(", ")
         ));
     }
+    // A state_dict does not record the order of a concatenation; our trainer's names
+    // (`lstm_force.*`, `lstm_bands.*`, `dense.*`) declare [h_force, h_bands].
+    let mut lstms = lstms;
+    let names: Vec<&str> = lstms.iter().map(|l| l.name.as_str()).collect();
+    let trainer_dual = dense.weight == "dense.weight"
+        && (names == ["lstm_force", "lstm_bands"] || names == ["lstm_bands", "lstm_force"]);
+    if trainer_dual && lstms[0].name == "lstm_bands" {
+        lstms.swap(0, 1);
+    }
     Ok(Imported {
         format: Format::Safetensors,
         lstms,
-        concat_order_known: false,
+        concat_order_known: trainer_dual,
         dense,
         metadata,
         notes,
@@ -164,6 +199,26 @@ fn find_lstms(
                 format!("`{n}` is present but its recurrent weights are not"),
             )
         })?;
+        // nn.GRU (3 gate blocks) and nn.RNN (1) share the names; say so rather than "shape".
+        if let ([g, _], [gh, h]) = (wih.shape.as_slice(), whh.shape.as_slice())
+            && g == gh
+            && *h > 0
+            && (*g == 3 * h || g == h)
+        {
+            let what = if g == h {
+                "a plain RNN (nn.RNN: one gate block"
+            } else {
+                "a GRU (nn.GRU: 3 gate blocks r, z, n"
+            };
+            return Err(ExportError::unsupported(
+                prefix.trim_end_matches('.'),
+                format!(
+                    "`{n}` {} with `{whh_name}` {} is {what}, not the 4 of an LSTM); the firmware runs LSTM cells only: train with nn.LSTM",
+                    dims(&wih.shape),
+                    dims(&whh.shape)
+                ),
+            ));
+        }
         if wih.shape.len() != 2 || wih.shape[0] == 0 || !wih.shape[0].is_multiple_of(4) {
             return Err(ExportError::shape(n, "[4H, I]", dims(&wih.shape)));
         }
