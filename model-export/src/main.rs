@@ -159,6 +159,11 @@ struct ModelArgs {
     /// Normalisation standard deviations, JSON array.
     #[arg(long)]
     norm_std: Option<String>,
+    /// Dual variant (d): the order in which the dense layer sees the hidden states,
+    /// force,bands or bands,force; needed when the file does not say (a state_dict not named
+    /// as our trainer's, a bare .weights.h5, an ONNX graph without the Concat).
+    #[arg(long)]
+    dual_order: Option<String>,
 }
 
 impl ModelArgs {
@@ -181,6 +186,7 @@ impl ModelArgs {
             ("model_id", &self.model_id),
             ("norm_mean", &self.norm_mean),
             ("norm_std", &self.norm_std),
+            ("dual_order", &self.dual_order),
         ];
         ModelSource {
             path,

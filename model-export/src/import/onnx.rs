@@ -658,9 +658,7 @@ fn read_lstm(
             ));
         }
     }
-    if let Some(a) = attr(n, "layout")
-        && a.i != 0
-    {
+    if let Some(a) = n.attribute.iter().find(|a| a.name == "layout" && a.i != 0) {
         return Err(ExportError::unsupported(
             format!("{label} attribute layout"),
             format!(

@@ -98,22 +98,44 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         Ok((_, u)) => u.iter().cloned().collect(),
         Err(_) => Vec::new(),
     };
-    let extra: Vec<String> = names
+    let extra: Vec<&String> = names
         .iter()
         .filter(|n| !used.contains(*n) && !dense_names.contains(n))
         .filter(|n| n.ends_with("weight") || n.ends_with("bias"))
-        .map(|n| format!("{n} {}", dims(&tensors[n].shape)))
         .collect();
     if !extra.is_empty() {
-        let head = match &found {
-            Ok((d, _)) => format!("`{}` {}", d.weight, dims(&[d.outputs, d.inputs])),
-            Err(_) => "no [2, K] output layer".into(),
+        // Name the layers (tensor prefixes) found, with their weight shapes.
+        let mut layers: Vec<String> = Vec::new();
+        let mut prefixes: Vec<String> = Vec::new();
+        let mut describe = |n: &str| {
+            let prefix = n
+                .strip_suffix("weight")
+                .or_else(|| n.strip_suffix("bias"))
+                .unwrap_or(n)
+                .trim_end_matches('.');
+            let w = format!("{prefix}.weight");
+            let shape = tensors
+                .get(&w)
+                .map_or("no weight".into(), |t| dims(&t.shape));
+            let l = format!("`{prefix}` {shape}");
+            if !layers.contains(&l) {
+                layers.push(l);
+                prefixes.push(prefix.to_string());
+            }
         };
+        for n in &extra {
+            describe(n);
+        }
+        if let Ok((d, _)) = &found {
+            describe(&d.weight);
+        }
+        let lstm_names: Vec<String> = lstms.iter().map(|l| format!("`{}`", l.name)).collect();
         return Err(ExportError::unsupported(
-            extra.join(", "),
+            prefixes.join(", "),
             format!(
-                "the head is not a single affine layer to 2 logits: besides the LSTM(s) the file has {head} and the layer parameters {}; the firmware runs LSTM → one Linear(K, 2) (an activation or a second layer between them cannot be converted)",
-                extra.join(", ")
+                "the head is not a single affine layer to 2 logits: after the LSTM {} the file has the layers {}; the firmware runs LSTM → one Linear(K, 2) (a second layer or an activation between them cannot be converted: retrain with one nn.Linear head)",
+                lstm_names.join(" and "),
+                layers.join(", ")
             ),
         ));
     }
