@@ -359,6 +359,9 @@ fn run_export(a: ExportArgs) -> Result<()> {
             eprintln!(
                 "warning: the blob does not follow the float model closely enough: {over}; see the per-tensor errors in the report"
             );
+            if let Some(w) = &r.weight_loss {
+                eprintln!("hint: {}", w.remedy);
+            }
         }
     } else {
         eprintln!("warning: no --data: quantized-vs-float agreement not measured");

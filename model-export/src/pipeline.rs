@@ -204,6 +204,19 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         path: "(exported blob)".into(),
         source: e,
     })?;
+    let weight_loss = match (&agreement, agree_set) {
+        (Some(a), Some(d)) => {
+            let seqs: Vec<&[f32]> = d.recordings.iter().map(|s| s.samples.as_slice()).collect();
+            Some(crate::report::weight_loss(
+                &model,
+                &parsed,
+                &seqs,
+                a.max_abs_dp,
+                &cal.cell_frac_bits,
+            ))
+        }
+        _ => None,
+    };
     let mut notes = loaded.imported.notes.clone();
     for k in &loaded.settings.unknown {
         notes.push(format!("unknown setting `{k}` ignored"));
@@ -254,6 +267,7 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
             )
         }),
         agreement,
+        weight_loss,
     };
     Ok(Exported {
         model,

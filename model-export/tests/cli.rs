@@ -909,6 +909,12 @@ fn export_warns_and_verify_fails_at_the_fidelity_bounds() {
         "{err}"
     );
     assert!(stdout.contains("worst step: trial "), "{stdout}");
+    // The loss attribution points at the cause: the cell format, not the weights.
+    assert!(
+        err.contains("hint: the weights rounded alone give")
+            && err.contains("--cell-bits, now [1]"),
+        "{err}"
+    );
     expect_fail(
         &[
             "verify",

@@ -549,6 +549,10 @@ fn with_config(
     to_imported(w, Some(names), concat, notes, format)
 }
 
+/// Largest `config.json` or `model.weights.h5` read from a `.keras` archive: 256 MiB, the
+/// f32 bytes of [`super::MAX_TENSOR_ELEMENTS`] values several times over.
+pub const MAX_ARCHIVE_ENTRY: u64 = 256 << 20;
+
 /// Reads a `.keras` archive.
 pub fn import_keras(path: &Path, bytes: &[u8]) -> Result<Imported> {
     let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes)).map_err(|e| {
@@ -561,10 +565,32 @@ pub fn import_keras(path: &Path, bytes: &[u8]) -> Result<Imported> {
                 format!("`{name}` missing from the .keras archive: {e}"),
             )
         })?;
+        // The sizes in a zip are the file's claims: bounded, and the read capped at the bound
+        // whatever the entry decompresses to.
+        if f.size() > MAX_ARCHIVE_ENTRY {
+            return Err(ExportError::format(
+                path,
+                format!(
+                    "`{name}` in the archive declares {} bytes, over the importer's bound of {MAX_ARCHIVE_ENTRY} (a model the firmware can run is a few MB at most)",
+                    f.size()
+                ),
+            ));
+        }
         let mut v = Vec::new();
-        f.read_to_end(&mut v).map_err(|e| {
-            ExportError::format(path, format!("`{name}` in the archive is unreadable: {e}"))
-        })?;
+        (&mut f)
+            .take(MAX_ARCHIVE_ENTRY + 1)
+            .read_to_end(&mut v)
+            .map_err(|e| {
+                ExportError::format(path, format!("`{name}` in the archive is unreadable: {e}"))
+            })?;
+        if v.len() as u64 > MAX_ARCHIVE_ENTRY {
+            return Err(ExportError::format(
+                path,
+                format!(
+                    "`{name}` in the archive decompresses to more than {MAX_ARCHIVE_ENTRY} bytes"
+                ),
+            ));
+        }
         Ok(v)
     };
     let config = String::from_utf8(read("config.json")?)

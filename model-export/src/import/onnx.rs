@@ -872,7 +872,7 @@ mod tests {
         let mut m = plain(3, 2);
         let g = m.graph.as_mut().expect("graph");
         g.node[0].attribute.push(int_attr("hidden_size", 1 << 62));
-        let e = import_model(&m).err().expect("refused");
+        let e = import_model(&m).expect_err("refused");
         assert_eq!(e.exit_code(), 6, "{e}");
         assert!(
             e.to_string().contains("hidden_size=4611686018427387904"),
@@ -884,7 +884,7 @@ mod tests {
     fn g_attr_negative(m: &mut ModelProto) {
         let g = m.graph.as_mut().expect("graph");
         g.node[0].attribute[0].i = -1;
-        let e = import_model(m).err().expect("refused");
+        let e = import_model(m).expect_err("refused");
         assert_eq!(e.exit_code(), 6, "{e}");
     }
 
@@ -901,13 +901,13 @@ mod tests {
         ] {
             let mut m = plain(3, 2);
             m.graph.as_mut().expect("graph").initializer[0].dims = dims.clone();
-            let e = import_model(&m).err().expect("refused");
+            let e = import_model(&m).expect_err("refused");
             assert_eq!(e.exit_code(), 9, "{dims:?}: {e}");
             assert!(e.to_string().contains(needle), "{dims:?}: {e}");
         }
         let mut m = plain(3, 2);
         m.graph.as_mut().expect("graph").initializer[1].dims = vec![1, -8, 2];
-        let e = import_model(&m).err().expect("refused");
+        let e = import_model(&m).expect_err("refused");
         assert_eq!(e.exit_code(), 4, "{e}");
     }
 
@@ -936,7 +936,7 @@ mod tests {
             })
             .collect();
             let path = dir.join("m.onnx");
-            let e = import(&path, &m.encode_to_vec()).err().expect("refused");
+            let e = import(&path, &m.encode_to_vec()).expect_err("refused");
             assert_eq!(e.exit_code(), 4, "{e}");
             assert!(e.to_string().contains(needle), "{e}");
         }

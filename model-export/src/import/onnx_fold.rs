@@ -515,8 +515,7 @@ mod tests {
     fn a_reshape_to_a_huge_shape_is_refused_before_allocating() {
         let x = c(&[2], vec![1., 2.]);
         let e = eval(&node("Reshape"), &[&x, &c(&[3], vec![4096., 4096., 4096.])])
-            .err()
-            .expect("refused");
+            .expect_err("refused");
         assert_eq!(e.exit_code(), 9, "{e}");
     }
 }
