@@ -354,6 +354,9 @@ fn run_export(a: ExportArgs) -> Result<()> {
         );
     }
     if let Some(ag) = &r.agreement {
+        if let Some(d) = &r.agreement_data {
+            println!("agreement data: {d}");
+        }
         print_agreement(ag);
         if let Some(over) = ag.over_bounds(calib::MAX_DP, calib::MIN_DECISIVE_AGREEMENT) {
             eprintln!(

@@ -184,19 +184,31 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         (Some(d), None, false) => d.split_holdout(HOLDOUT_EVERY),
         _ => None,
     };
-    let cal_set: Option<&DataSet> = split.as_ref().map(|(c, _)| c).or(data.as_ref());
-    // Calibration runs over the whole recordings: the cell state a device reaches after the
-    // release is outside the labelled windows.
-    let seqs: Vec<&[f32]> = cal_set
-        .map(|d| d.recordings.iter().map(|s| s.samples.as_slice()).collect())
-        .unwrap_or_default();
+    // The written blob is calibrated on all of --data, over the whole recordings: the cell
+    // state a device reaches after the release is outside the labelled windows.
+    let recordings =
+        |d: &DataSet| -> Vec<Vec<f32>> { d.recordings.iter().map(|s| s.samples.clone()).collect() };
+    let all: Vec<Vec<f32>> = data.as_ref().map(recordings).unwrap_or_default();
+    let seqs: Vec<&[f32]> = all.iter().map(Vec::as_slice).collect();
     let (blob, q, cal) = quantize_calibrated(&model, &seqs, opts.cell_bits, opts.quiet)?;
+    // With a held-out split the agreement is that of the same procedure with the held-out
+    // trials left out of calibration: a blob calibrated on the other trials, measured on them.
+    let held_blob = match &split {
+        Some((rest, _)) => {
+            let r = recordings(rest);
+            let seqs: Vec<&[f32]> = r.iter().map(Vec::as_slice).collect();
+            let (b, _, c) = quantize_calibrated(&model, &seqs, opts.cell_bits, true)?;
+            Some((b, c.cell_frac_bits))
+        }
+        None => None,
+    };
     let agree_set: Option<&DataSet> = validation
         .as_ref()
         .or(split.as_ref().map(|(_, h)| h))
         .or(data.as_ref());
+    let measured: &[u8] = held_blob.as_ref().map_or(&blob, |(b, _)| b);
     let agreement: Option<Agreement> = match agree_set {
-        Some(d) => Some(calib::agreement(&model, &blob, d, opts.quiet)?),
+        Some(d) => Some(calib::agreement(&model, measured, d, opts.quiet)?),
         None => None,
     };
     let aligned = AlignedBlob::new(&blob);
@@ -212,11 +224,12 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
                 &parsed,
                 &seqs,
                 a.max_abs_dp,
-                &cal.cell_frac_bits,
+                held_blob.as_ref().map_or(&cal.cell_frac_bits, |(_, c)| c),
             ))
         }
         _ => None,
     };
+    let written_bits = cal.cell_frac_bits.clone();
     let mut notes = loaded.imported.notes.clone();
     for k in &loaded.settings.unknown {
         notes.push(format!("unknown setting `{k}` ignored"));
@@ -243,28 +256,25 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         notes,
         blob: describe_blob(&parsed),
         tensor_errors: tensor_errors(&model, &q),
-        calibration_data: cal_set.map(|d| {
+        calibration_data: data.as_ref().map(|d| {
             format!(
                 "{} ({} trials, {} unlabelled; whole recordings)",
-                d.source,
-                d.trials,
-                data.as_ref().map_or(0, |a| a.unlabelled)
+                d.source, d.trials, d.unlabelled
             )
         }),
         calibration: data.as_ref().map(|_| cal),
         agreement_data: agree_set.map(|d| {
-            format!(
-                "{} ({} trials; whole recordings){}",
-                d.source,
-                d.trials,
-                if validation.is_some() {
-                    ", validation set"
-                } else if split.is_some() {
-                    ", held out of calibration"
-                } else {
-                    ", the calibration set"
-                }
-            )
+            let how = if validation.is_some() {
+                ", validation set".to_string()
+            } else if let Some((_, bits)) = &held_blob {
+                format!(
+                    ", measured with a blob calibrated without them (cell bits {bits:?}; the written blob, calibrated on all: {:?})",
+                    written_bits
+                )
+            } else {
+                ", the calibration set".to_string()
+            };
+            format!("{} ({} trials; whole recordings){how}", d.source, d.trials)
         }),
         agreement,
         weight_loss,

@@ -517,6 +517,14 @@ fn export_inspect_verify_end_to_end() {
         serde_json::from_str(&std::fs::read_to_string(d.join("model.bin.report.json")).unwrap())
             .unwrap();
     assert!(js["agreement"]["flag_agreement"].as_f64().unwrap() > 0.98);
+    // Measured on the held-out trial(s), over whole recordings, with the worst step named.
+    let on = js["agreement_data"].as_str().unwrap();
+    assert!(
+        on.contains("held out: every 5th trial (1 trials") && on.contains("whole recordings"),
+        "{on}"
+    );
+    assert!(js["agreement"]["worst"]["trial"].is_string());
+    assert!(js["weight_loss"]["tensors"].as_array().unwrap().len() == 4);
     assert!(js["agreement"]["float_metrics"]["success_rate"].is_number());
     assert_eq!(js["blob"]["crc"].as_u64().unwrap() as u32, parsed.crc);
     // Snippet.
@@ -1024,4 +1032,25 @@ fn run_dumps_p_per_step_and_checks_features() {
         .fold(0f64, f64::max);
     println!("run --features: max |p_blob − p_torch| {worst:.4}");
     assert!(worst < 0.01, "{worst}");
+}
+
+/// Shapes in a safetensors header are bounded too: a [0, 2^62] tensor holds no bytes (so the
+/// container is valid) but must not reach `3 * H` or `4 * H`.
+#[test]
+fn huge_safetensors_dimensions_exit_9() {
+    let d = tmp("st-dims");
+    let (mut t, meta) = read_st(&fixture("torch_c.safetensors"));
+    for x in t.iter_mut() {
+        if x.0 == "lstm.weight_ih_l0" || x.0 == "lstm.weight_hh_l0" {
+            x.2 = vec![0, 1 << 62];
+            x.3.clear();
+        }
+    }
+    let p = d.join("huge.safetensors");
+    write_st(&p, &t, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&d.join("m.bin"))],
+        9,
+        "has a dimension of 4611686018427387904",
+    );
 }

@@ -14,7 +14,7 @@ use std::path::Path;
 use safetensors::{Dtype, SafeTensors};
 use slipguard_core::float::FloatLstm;
 
-use super::{Format, Imported, NamedDense, NamedLstm, dims};
+use super::{Format, Imported, NamedDense, NamedLstm, dims, element_count};
 use crate::error::{ExportError, Result, check_finite_in};
 
 /// A tensor converted to f32.
@@ -79,6 +79,9 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
 
     let mut tensors: BTreeMap<String, T> = BTreeMap::new();
     for (name, view) in st.tensors() {
+        // Shapes come from the file's header: every dimension bounded before `4 * H` and co.
+        let shape64: Vec<u64> = view.shape().iter().map(|&d| d as u64).collect();
+        element_count(&name, &shape64)?;
         let data = to_f32(&name, view.dtype(), view.data())?;
         check_finite_in(&name, view.shape(), &data)?;
         tensors.insert(
