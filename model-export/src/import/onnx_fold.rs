@@ -212,10 +212,6 @@ fn eval(n: &NodeProto, inputs: &[&Const]) -> Result<Vec<Const>> {
             // out[i0, i1, …] = x[… with axis perm[k] = i_k]: select along permuted strides.
             let st = strides(&x.dims);
             let out_dims: Vec<usize> = perm.iter().map(|&p| x.dims[p]).collect();
-            let perm_view = Const {
-                dims: out_dims.clone(),
-                data: Vec::new(),
-            };
             let total: usize = out_dims.iter().product();
             let mut out = Vec::with_capacity(total);
             let mut pos = vec![0usize; rank];
@@ -224,7 +220,7 @@ fn eval(n: &NodeProto, inputs: &[&Const]) -> Result<Vec<Const>> {
                 out.push(x.data[off]);
                 for k in (0..rank).rev() {
                     pos[k] += 1;
-                    if pos[k] < perm_view.dims[k] {
+                    if pos[k] < out_dims[k] {
                         break;
                     }
                     pos[k] = 0;
