@@ -870,7 +870,10 @@ mod tests {
     #[test]
     fn hidden_size_attribute_near_i64_max_is_a_shape_error() {
         for (hs, needle) in [
-            (1i64 << 62, "[1, 9223372036854775807, I] (hidden_size=4611686018427387904)"),
+            (
+                1i64 << 62,
+                "[1, 9223372036854775807, I] (hidden_size=4611686018427387904)",
+            ),
             (-1, "(hidden_size=-1)"),
         ] {
             let mut m = plain(3, 2);
