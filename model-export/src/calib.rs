@@ -148,24 +148,39 @@ pub fn load_data(
 }
 
 impl DataSet {
-    /// Splits off every `every`-th trial (in load order, the last of each group of `every`) as
-    /// a held-out part: (the rest, the held-out part). `None` when there are fewer than 2 trials.
+    /// Splits off every `every`-th trial as a held-out part: (the rest, the held-out part).
+    /// Failures and the other trials are counted separately (in load order, the last of each
+    /// group of `every`), so that both kinds are held out when there are enough of them; with
+    /// fewer than `every` trials in all, the last one is held out. `None` with fewer than 2.
     pub fn split_holdout(&self, every: usize) -> Option<(DataSet, DataSet)> {
-        let mut ids: Vec<&str> = Vec::new();
+        let mut ids: Vec<(&str, bool)> = Vec::new();
         for s in self.recordings.iter().chain(&self.sequences) {
-            if !ids.contains(&s.trial_id.as_str()) {
-                ids.push(&s.trial_id);
+            if !ids.iter().any(|(id, _)| *id == s.trial_id) {
+                ids.push((&s.trial_id, s.outcome == Outcome::Failure));
             }
         }
         if ids.len() < 2 || every < 2 {
             return None;
         }
-        let held: Vec<&str> = ids
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| i % every == every - 1 || (ids.len() < every && *i == ids.len() - 1))
-            .map(|(_, id)| *id)
-            .collect();
+        let mut held: Vec<&str> = Vec::new();
+        for failure in [true, false] {
+            let group: Vec<&str> = ids
+                .iter()
+                .filter(|(_, f)| *f == failure)
+                .map(|(id, _)| *id)
+                .collect();
+            held.extend(
+                group
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| i % every == every - 1)
+                    .map(|(_, id)| *id),
+            );
+        }
+        if held.is_empty() {
+            held.push(ids[ids.len() - 1].0);
+        }
+        let ids: Vec<&str> = ids.iter().map(|(id, _)| *id).collect();
         let part = |keep: bool, what: &str| {
             let pick = |v: &[ChannelSequence]| -> Vec<ChannelSequence> {
                 v.iter()

@@ -172,13 +172,24 @@ impl ExportReport {
         match (&self.agreement_data, &self.agreement) {
             (Some(d), Some(a)) => {
                 s.push_str(&format!(
-                    "Data: `{d}`: {} sequences, {} steps.\n\n",
+                    "Data: `{d}`: {} whole recordings, {} steps.\n\n",
                     a.sequences, a.steps
                 ));
                 s.push_str(&format!(
                     "| flag agreement | on decisive steps¹ | max \\|Δp\\| | mean \\|Δp\\| | max \\|Δh\\| |\n|---:|---:|---:|---:|---:|\n| {:.3} % ({} steps differ) | {:.3} % of {} | {:.5} | {:.6} | {:.5} |\n\n¹ steps where the float p stays ≥ 0.02 from the threshold over the hysteresis window.\n",
                     100.0 * a.flag_agreement, a.flag_disagreements, 100.0 * a.decisive_flag_agreement, a.decisive_steps, a.max_abs_dp, a.mean_abs_dp, a.max_abs_dh
                 ));
+                if let Some(w) = &a.worst {
+                    s.push_str(&format!(
+                        "\nWorst step: trial `{}` channel {} step {} (from the recording's first sample): float p {:.4}, blob p {:.4}.\n",
+                        w.trial, w.channel, w.step, w.p_float, w.p_quantized
+                    ));
+                }
+                if let Some(over) =
+                    a.over_bounds(crate::calib::MAX_DP, crate::calib::MIN_DECISIVE_AGREEMENT)
+                {
+                    s.push_str(&format!("\n**Over the bounds**: {over}.\n"));
+                }
                 if let (Some(f), Some(q)) = (&a.float_metrics, &a.quant_metrics) {
                     s.push_str("\n| model | success rate | ahead-drop rate | false-alarm rate |\n|---|---:|---:|---:|\n");
                     s.push_str(&format!(
