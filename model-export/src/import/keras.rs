@@ -267,7 +267,11 @@ fn read_ds(
     // Sizes come from the file: bounded before anything is allocated.
     let n = element_count(name, ds.shape())?;
     let shape: Vec<usize> = ds.shape().iter().map(|&d| d as usize).collect();
-    if ds.chunks().is_none() {
+    if let Some(chunk) = ds.chunks() {
+        // The decoder allocates a chunk at a time: its shape is bounded like the dataset's.
+        let c64: Vec<u64> = chunk.iter().map(|&c| c as u64).collect();
+        element_count(&format!("{name} (chunk)"), &c64)?;
+    } else {
         // Contiguous (uncompressed) storage, as Keras writes it, lies inside the file.
         let elem = ds.raw_element_size().unwrap_or(1).max(1);
         if n.saturating_mul(elem) > file_len {

@@ -363,6 +363,12 @@ fn eval(n: &NodeProto, inputs: &[&Const]) -> Result<Vec<Const>> {
                     }
                 })
                 .collect::<Result<_>>()?;
+            let mut dims = x.dims[..a].to_vec();
+            dims.extend_from_slice(&ind.dims);
+            dims.extend_from_slice(&x.dims[a + 1..]);
+            // Many indices into a large axis multiply: bounded before the output is built.
+            let d64: Vec<u64> = dims.iter().map(|&d| d as u64).collect();
+            element_count(&node_label(n), &d64)?;
             let outer: usize = x.dims[..a].iter().product();
             let inner: usize = x.dims[a + 1..].iter().product();
             let mut out = Vec::new();
@@ -372,9 +378,6 @@ fn eval(n: &NodeProto, inputs: &[&Const]) -> Result<Vec<Const>> {
                     out.extend_from_slice(&x.data[base..base + inner]);
                 }
             }
-            let mut dims = x.dims[..a].to_vec();
-            dims.extend_from_slice(&ind.dims);
-            dims.extend_from_slice(&x.dims[a + 1..]);
             vec![new_const(n, dims, out)?]
         }
         "Split" => {
@@ -505,6 +508,15 @@ mod tests {
         assert_eq!(u[0].dims, vec![1, 2, 3]);
         let q = eval(&node("Squeeze"), &[&u[0], &c(&[1], vec![0.])]).expect("q");
         assert_eq!(q[0].dims, vec![2, 3]);
+    }
+
+    #[test]
+    fn a_gather_that_multiplies_sizes_is_refused_before_allocating() {
+        // 4096 indices into each of 4096 rows of 4096 values: 2^36 outputs from 2^24 inputs.
+        let x = c(&[4096, 4096], vec![0.; 4096 * 4096]);
+        let idx = c(&[4096, 4096], vec![1.; 4096 * 4096]);
+        let e = eval(&node("Gather"), &[&x, &idx]).expect_err("refused");
+        assert_eq!(e.exit_code(), 9, "{e}");
     }
 
     #[test]
