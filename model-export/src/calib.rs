@@ -34,6 +34,9 @@ pub struct DataSet {
     pub unlabelled: usize,
     /// Per contact channel: samples of the labelled window and labels.
     pub sequences: Vec<ChannelSequence>,
+    /// Per contact channel: the whole recording, every step from the first to the last (no
+    /// labels). Calibration and agreement run on these: what the device sees when it streams.
+    pub recordings: Vec<ChannelSequence>,
     /// Sample rate of the data, Hz.
     pub rate_hz: f32,
     /// Warnings (rate or unit different from the model's).
@@ -85,6 +88,7 @@ pub fn load_data(
         trials: trials.len(),
         unlabelled: 0,
         sequences: Vec::new(),
+        recordings: Vec::new(),
         rate_hz: trials[0].rate_hz,
         warnings: Vec::new(),
     };
@@ -97,6 +101,18 @@ pub fn load_data(
             );
             if out.warnings.len() < 5 {
                 out.warnings.push(w);
+            }
+        }
+        for (c, samples) in t.samples.iter().enumerate() {
+            if t.contact.get(c) == Some(&true) && !samples.is_empty() {
+                out.recordings.push(ChannelSequence {
+                    trial_id: t.id.clone(),
+                    channel: c,
+                    samples: samples.clone(),
+                    labels: Vec::new(),
+                    drop_index: None,
+                    outcome: t.outcome,
+                });
             }
         }
         let l = labels::label_annotated(t, &cfg);
@@ -129,6 +145,81 @@ pub fn load_data(
         )));
     }
     Ok(out)
+}
+
+impl DataSet {
+    /// Splits off every `every`-th trial as a held-out part: (the rest, the held-out part).
+    /// Failures and the other trials are counted separately (in load order, the last of each
+    /// group of `every`), so that both kinds are held out when there are enough of them; with
+    /// fewer than `every` trials in all, the last one is held out. `None` with fewer than 2.
+    pub fn split_holdout(&self, every: usize) -> Option<(DataSet, DataSet)> {
+        let mut ids: Vec<(&str, bool)> = Vec::new();
+        for s in self.recordings.iter().chain(&self.sequences) {
+            if !ids.iter().any(|(id, _)| *id == s.trial_id) {
+                ids.push((&s.trial_id, s.outcome == Outcome::Failure));
+            }
+        }
+        if ids.len() < 2 || every < 2 {
+            return None;
+        }
+        let mut held: Vec<&str> = Vec::new();
+        for failure in [true, false] {
+            let group: Vec<&str> = ids
+                .iter()
+                .filter(|(_, f)| *f == failure)
+                .map(|(id, _)| *id)
+                .collect();
+            held.extend(
+                group
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| i % every == every - 1)
+                    .map(|(_, id)| *id),
+            );
+        }
+        if held.is_empty() {
+            held.push(ids[ids.len() - 1].0);
+        }
+        let ids: Vec<&str> = ids.iter().map(|(id, _)| *id).collect();
+        let part = |keep: bool, what: &str| {
+            let pick = |v: &[ChannelSequence]| -> Vec<ChannelSequence> {
+                v.iter()
+                    .filter(|s| held.contains(&s.trial_id.as_str()) == keep)
+                    .cloned()
+                    .collect()
+            };
+            let n = if keep {
+                held.len()
+            } else {
+                ids.len() - held.len()
+            };
+            DataSet {
+                source: format!("{}, {what}", self.source),
+                trials: n,
+                unlabelled: 0,
+                sequences: pick(&self.sequences),
+                recordings: pick(&self.recordings),
+                rate_hz: self.rate_hz,
+                warnings: self.warnings.clone(),
+            }
+        };
+        let rest = part(
+            false,
+            &format!(
+                "all but every {every}th trial ({} trials)",
+                ids.len() - held.len()
+            ),
+        );
+        let held_out = part(
+            true,
+            &format!(
+                "held out: every {every}th trial ({} trials: {})",
+                held.len(),
+                held.join(", ")
+            ),
+        );
+        Some((rest, held_out))
+    }
 }
 
 /// What the float model does on the calibration data.
@@ -263,6 +354,8 @@ pub struct Agreement {
     pub decisive_flag_agreement: f64,
     /// Largest |p_q − p_f|.
     pub max_abs_dp: f32,
+    /// Where it is: trial, channel and step (0 = the recording's first sample).
+    pub worst: Option<WorstStep>,
     /// Mean |p_q − p_f|.
     pub mean_abs_dp: f32,
     /// Largest |h_q − h_f| over every hidden unit.
@@ -295,8 +388,68 @@ impl Agreement {
 /// Distance of p from the threshold below which a flag difference is a rounding tie.
 pub const DECISIVE_MARGIN: f32 = 0.02;
 
-/// Runs both models over every sequence (from a reset state each) and compares them.
+/// `export` warns and `verify` fails (exit 13) above this max |Δp| over the data.
+pub const MAX_DP: f32 = 0.05;
+/// `export` warns and `verify` fails (exit 13) below this flag agreement on decisive steps.
+pub const MIN_DECISIVE_AGREEMENT: f64 = 0.995;
+
+/// The step with the largest |Δp|.
+#[derive(Clone, Debug, Serialize)]
+pub struct WorstStep {
+    /// Trial id.
+    pub trial: String,
+    /// Channel.
+    pub channel: usize,
+    /// Step in the compared sequence (for whole recordings: from the recording's first sample).
+    pub step: usize,
+    /// The float model's p there.
+    pub p_float: f32,
+    /// The blob's p there.
+    pub p_quantized: f32,
+}
+
+impl Agreement {
+    /// The bounds `export` warns at and `verify` fails at: `None` when within them, else what
+    /// is over.
+    pub fn over_bounds(&self, max_dp: f32, min_decisive: f64) -> Option<String> {
+        let mut over = Vec::new();
+        if self.max_abs_dp > max_dp {
+            let at = self.worst.as_ref().map_or(String::new(), |w| {
+                format!(
+                    " at trial {} channel {} step {} (float p {:.3}, blob p {:.3})",
+                    w.trial, w.channel, w.step, w.p_float, w.p_quantized
+                )
+            });
+            over.push(format!("max |Δp| {:.4} > {max_dp}{at}", self.max_abs_dp));
+        }
+        if self.decisive_flag_agreement < min_decisive {
+            over.push(format!(
+                "flag agreement on steps ≥ {DECISIVE_MARGIN} from the threshold {:.3} % < {:.1} %",
+                100.0 * self.decisive_flag_agreement,
+                100.0 * min_decisive
+            ));
+        }
+        (!over.is_empty()).then(|| over.join("; "))
+    }
+}
+
+/// Runs both models over every step of every whole recording of `data` (from a reset state
+/// each) and compares them; the paper's metrics come from the labelled windows.
 pub fn agreement(
+    float: &FloatModel,
+    blob: &[u8],
+    data: &DataSet,
+    quiet: bool,
+) -> Result<Agreement> {
+    let mut a = compare(float, blob, &data.recordings, quiet)?;
+    let windows = compare(float, blob, &data.sequences, true)?;
+    a.float_metrics = windows.float_metrics;
+    a.quant_metrics = windows.quant_metrics;
+    Ok(a)
+}
+
+/// Runs both models over every sequence (from a reset state each) and compares them.
+pub fn compare(
     float: &FloatModel,
     blob: &[u8],
     seqs: &[ChannelSequence],
@@ -317,6 +470,7 @@ pub fn agreement(
         .max(float.config.clear_after)
         .max(1) as usize;
     let (mut max_dp, mut sum_dp, mut max_dh) = (0f32, 0f64, 0f32);
+    let mut worst = None;
     let (mut ev_f, mut ev_q) = (Vec::new(), Vec::new());
     let pb = bar(seqs.len(), "comparing", quiet);
     for s in seqs {
@@ -324,11 +478,20 @@ pub fn agreement(
         let mut qs = ChannelState::new();
         let (mut pf, mut pq) = (Vec::new(), Vec::new());
         let mut close_run = usize::MAX; // steps since p was last within the margin
-        for &raw in &s.samples {
+        for (i, &raw) in s.samples.iter().enumerate() {
             let f = float.step(&mut fs, raw);
             let q = model.step(&mut qs, raw.round() as i32);
             let p = q.p_unstable_q15 as f32 / 32768.0;
             let dp = (p - f.p_unstable).abs();
+            if dp > max_dp || worst.is_none() {
+                worst = Some(WorstStep {
+                    trial: s.trial_id.clone(),
+                    channel: s.channel,
+                    step: i,
+                    p_float: f.p_unstable,
+                    p_quantized: p,
+                });
+            }
             max_dp = max_dp.max(dp);
             sum_dp += dp as f64;
             for (k, l) in float.lstms.iter().enumerate() {
@@ -405,6 +568,7 @@ pub fn agreement(
             1.0 - decisive_disagree as f64 / decisive as f64
         },
         max_abs_dp: max_dp,
+        worst,
         mean_abs_dp: (sum_dp / steps as f64) as f32,
         max_abs_dh: max_dh,
         float_metrics: fm,

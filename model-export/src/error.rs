@@ -47,6 +47,8 @@ pub enum ExportError {
         tensor: String,
         /// Flat index of the first bad value.
         index: usize,
+        /// Where that is in the file's own layout (empty when not known).
+        at: String,
     },
     /// A construct the firmware cannot run: bidirectional, peepholes, projection, clipping,
     /// stacked layers, activations other than σ/tanh, a dense layer that is not 2 logits.
@@ -166,9 +168,9 @@ impl std::fmt::Display for ExportError {
                 f,
                 "tensor `{tensor}` has shape {found}, expected {expected}"
             ),
-            Self::NotFinite { tensor, index } => write!(
+            Self::NotFinite { tensor, index, at } => write!(
                 f,
-                "tensor `{tensor}` has a NaN or infinite value at flat index {index}"
+                "tensor `{tensor}` has a NaN or infinite value at flat index {index}{at}"
             ),
             Self::Unsupported { tensor, msg } => write!(f, "`{tensor}`: {msg}"),
             Self::OverBounds { tensor, msg } => write!(f, "`{tensor}`: {msg}"),
@@ -199,7 +201,41 @@ pub fn check_finite(tensor: &str, v: &[f32]) -> Result<()> {
         Some(index) => Err(ExportError::NotFinite {
             tensor: tensor.into(),
             index,
+            at: String::new(),
         }),
         None => Ok(()),
     }
+}
+
+/// Checks that every value of a tensor is finite, in the file's own layout: the error names the
+/// element by its index in the file's shape (e.g. element `[3, 17]` of `kernel` [11, 64]) and
+/// its flat index there, before any transposition or gate reordering.
+pub fn check_finite_in(tensor: &str, shape: &[usize], v: &[f32]) -> Result<()> {
+    let Some(index) = v.iter().position(|x| !x.is_finite()) else {
+        return Ok(());
+    };
+    let mut rest = index;
+    let mut idx = vec![0usize; shape.len()];
+    for (k, &d) in shape.iter().enumerate().rev() {
+        if d > 0 {
+            idx[k] = rest % d;
+            rest /= d;
+        }
+    }
+    let join = |d: &[usize]| {
+        d.iter()
+            .map(|x| x.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    Err(ExportError::NotFinite {
+        tensor: tensor.into(),
+        index,
+        at: format!(
+            " = {}, element [{}] of its shape [{}] as stored in the file",
+            v[index],
+            join(&idx),
+            join(shape)
+        ),
+    })
 }

@@ -12,6 +12,7 @@ pub mod import;
 pub mod inspect;
 pub mod pipeline;
 pub mod report;
+pub mod run;
 pub mod settings;
 pub mod upload;
 pub mod write;

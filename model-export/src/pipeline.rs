@@ -114,7 +114,14 @@ pub struct ExportOptions {
     pub cell_bits: Option<[u8; 2]>,
     /// No progress bars.
     pub quiet: bool,
+    /// Measure the agreement on the calibration data itself instead of holding out every
+    /// [`HOLDOUT_EVERY`]th trial (when there is no separate validation set).
+    pub no_holdout: bool,
 }
+
+/// Without `--validation`, every this-many-th trial of `--data` is held out of calibration and
+/// the agreement is measured on those trials.
+pub const HOLDOUT_EVERY: usize = 5;
 
 /// The result of an export (nothing written yet).
 #[derive(Clone, Debug)]
@@ -167,18 +174,41 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
             .push("--fit-norm ignored: the model carries its normalisation".into());
     }
     let model = loaded.model;
-    let seqs: Vec<&[f32]> = data
-        .as_ref()
-        .map(|d| d.sequences.iter().map(|s| s.samples.as_slice()).collect())
-        .unwrap_or_default();
-    let (blob, q, cal) = quantize_calibrated(&model, &seqs, opts.cell_bits, opts.quiet)?;
     let validation = match &opts.validation {
         Some(v) => Some(calib::load_data(v, &config, opts.max_trials, opts.quiet)?),
         None => None,
     };
-    let agree_set: Option<&DataSet> = validation.as_ref().or(data.as_ref());
+    // Without a validation set, every HOLDOUT_EVERY-th trial is held out of calibration and
+    // the agreement is measured on it (unless --no-holdout).
+    let split = match (&data, &validation, opts.no_holdout) {
+        (Some(d), None, false) => d.split_holdout(HOLDOUT_EVERY),
+        _ => None,
+    };
+    // The written blob is calibrated on all of --data, over the whole recordings: the cell
+    // state a device reaches after the release is outside the labelled windows.
+    let recordings =
+        |d: &DataSet| -> Vec<Vec<f32>> { d.recordings.iter().map(|s| s.samples.clone()).collect() };
+    let all: Vec<Vec<f32>> = data.as_ref().map(recordings).unwrap_or_default();
+    let seqs: Vec<&[f32]> = all.iter().map(Vec::as_slice).collect();
+    let (blob, q, cal) = quantize_calibrated(&model, &seqs, opts.cell_bits, opts.quiet)?;
+    // With a held-out split the agreement is that of the same procedure with the held-out
+    // trials left out of calibration: a blob calibrated on the other trials, measured on them.
+    let held_blob = match &split {
+        Some((rest, _)) => {
+            let r = recordings(rest);
+            let seqs: Vec<&[f32]> = r.iter().map(Vec::as_slice).collect();
+            let (b, _, c) = quantize_calibrated(&model, &seqs, opts.cell_bits, true)?;
+            Some((b, c.cell_frac_bits))
+        }
+        None => None,
+    };
+    let agree_set: Option<&DataSet> = validation
+        .as_ref()
+        .or(split.as_ref().map(|(_, h)| h))
+        .or(data.as_ref());
+    let measured: &[u8] = held_blob.as_ref().map_or(&blob, |(b, _)| b);
     let agreement: Option<Agreement> = match agree_set {
-        Some(d) => Some(calib::agreement(&model, &blob, &d.sequences, opts.quiet)?),
+        Some(d) => Some(calib::agreement(&model, measured, d, opts.quiet)?),
         None => None,
     };
     let aligned = AlignedBlob::new(&blob);
@@ -186,6 +216,20 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         path: "(exported blob)".into(),
         source: e,
     })?;
+    let weight_loss = match (&agreement, agree_set) {
+        (Some(a), Some(d)) => {
+            let seqs: Vec<&[f32]> = d.recordings.iter().map(|s| s.samples.as_slice()).collect();
+            Some(crate::report::weight_loss(
+                &model,
+                &parsed,
+                &seqs,
+                a.max_abs_dp,
+                held_blob.as_ref().map_or(&cal.cell_frac_bits, |(_, c)| c),
+            ))
+        }
+        _ => None,
+    };
+    let written_bits = cal.cell_frac_bits.clone();
     let mut notes = loaded.imported.notes.clone();
     for k in &loaded.settings.unknown {
         notes.push(format!("unknown setting `{k}` ignored"));
@@ -214,24 +258,26 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         tensor_errors: tensor_errors(&model, &q),
         calibration_data: data.as_ref().map(|d| {
             format!(
-                "{} ({} trials, {} unlabelled)",
+                "{} ({} trials, {} unlabelled; whole recordings)",
                 d.source, d.trials, d.unlabelled
             )
         }),
         calibration: data.as_ref().map(|_| cal),
         agreement_data: agree_set.map(|d| {
-            format!(
-                "{} ({} trials){}",
-                d.source,
-                d.trials,
-                if validation.is_some() {
-                    ", validation set"
-                } else {
-                    ", the calibration set"
-                }
-            )
+            let how = if validation.is_some() {
+                ", validation set".to_string()
+            } else if let Some((_, bits)) = &held_blob {
+                format!(
+                    ", measured with a blob calibrated without them (cell bits {bits:?}; the written blob, calibrated on all: {:?})",
+                    written_bits
+                )
+            } else {
+                ", the calibration set".to_string()
+            };
+            format!("{} ({} trials; whole recordings){how}", d.source, d.trials)
         }),
         agreement,
+        weight_loss,
     };
     Ok(Exported {
         model,
@@ -264,6 +310,20 @@ pub fn float_for_blob(
     src: &ModelSource,
     blob: &ModelBlob<'_>,
 ) -> Result<(FloatModel, Vec<String>)> {
+    // The checkpoint read with its own settings first: a checkpoint of another variant or size
+    // is a failed verification (exit 13), not a shape error of the blob's settings.
+    if let Ok(own) = load_float(src) {
+        let (f, b) = (&own.model.config, &blob.config);
+        if f.hidden != b.hidden || f.variant != b.variant {
+            return Err(ExportError::VerifyFailed(format!(
+                "the checkpoint is {} with hidden {:?}, the blob {} with hidden {:?}",
+                f.variant.name(),
+                &f.hidden[..own.model.lstms.len()],
+                b.variant.name(),
+                &b.hidden[..b.variant.lstm_count()]
+            )));
+        }
+    }
     let mut src = src.clone();
     let header: BTreeMap<String, String> = describe(&blob.config);
     let mut notes = Vec::new();

@@ -90,7 +90,21 @@ pub const KEYS: &[(&str, &str, &str)] = &[
         "",
         "u32 (decimal or 0x hex); default: CRC-32 of the float weights",
     ),
+    (
+        "dual_order",
+        "",
+        "variant d: order of the hidden states the dense layer sees, force,bands or bands,force (needed when the file does not say)",
+    ),
 ];
+
+/// Order in which a dual model's dense layer sees the two hidden states.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DualOrder {
+    /// Columns [h_force, h_bands] (our trainer's order).
+    ForceBands,
+    /// Columns [h_bands, h_force].
+    BandsForce,
+}
 
 /// Merged settings, as strings, before parsing.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -113,6 +127,8 @@ pub struct Resolved {
     pub model_id: Option<u32>,
     /// Whether a name was given.
     pub named: bool,
+    /// `dual_order`, when given.
+    pub dual_order: Option<DualOrder>,
 }
 
 impl Settings {
@@ -334,7 +350,21 @@ impl Settings {
             raise_after,
             clear_after,
         };
+        let dual_order = match self.get("dual_order").map(str::trim) {
+            None | Some("") => None,
+            Some(v) => Some(match v.replace(' ', "").as_str() {
+                "force,bands" => DualOrder::ForceBands,
+                "bands,force" => DualOrder::BandsForce,
+                _ => {
+                    return Err(ExportError::settings(
+                        "dual_order",
+                        format!("`{v}` is not force,bands or bands,force"),
+                    ));
+                }
+            }),
+        };
         Ok(Resolved {
+            dual_order,
             config,
             norm_mean: self.floats("norm_mean")?,
             norm_std: self.floats("norm_std")?,

@@ -517,6 +517,14 @@ fn export_inspect_verify_end_to_end() {
         serde_json::from_str(&std::fs::read_to_string(d.join("model.bin.report.json")).unwrap())
             .unwrap();
     assert!(js["agreement"]["flag_agreement"].as_f64().unwrap() > 0.98);
+    // Measured on the held-out trial(s), over whole recordings, with the worst step named.
+    let on = js["agreement_data"].as_str().unwrap();
+    assert!(
+        on.contains("held out: every 5th trial (1 trials") && on.contains("whole recordings"),
+        "{on}"
+    );
+    assert!(js["agreement"]["worst"]["trial"].is_string());
+    assert!(js["weight_loss"]["tensors"].as_array().unwrap().len() == 4);
     assert!(js["agreement"]["float_metrics"]["success_rate"].is_number());
     assert_eq!(js["blob"]["crc"].as_u64().unwrap() as u32, parsed.crc);
     // Snippet.
@@ -597,8 +605,8 @@ fn export_inspect_verify_end_to_end() {
             "2",
             "-q",
         ],
-        8,
-        "variant data-stft-lstm has 1",
+        13,
+        "the checkpoint is lstm-stft-lstm with hidden [8, 12], the blob data-stft-lstm with hidden [16]",
     );
 
     // A failed export over an existing blob leaves it untouched.
@@ -706,4 +714,343 @@ fn help_has_an_example_per_input_format() {
             assert!(h.contains(needle), "{args:?} help lacks `{needle}`");
         }
     }
+}
+
+/// Inputs that used to convert silently wrong with exit 0, each refused naming the cause.
+#[test]
+fn ambiguous_or_unconvertible_inputs_are_refused() {
+    let d = tmp("strict");
+    let out = d.join("m.bin");
+    let os = fixture("onnx_c.settings.json");
+    let ds = fixture("dynamo64_c.settings.json");
+    let cases: Vec<(PathBuf, Option<&PathBuf>, i32, &str)> = vec![
+        // Linear → ReLU → Linear: not one affine layer (the last Linear used to be taken).
+        (
+            fixture("bad_relu_head.safetensors"),
+            None,
+            8,
+            "the head is not a single affine layer to 2 logits",
+        ),
+        (
+            fixture("bad_relu_head.safetensors"),
+            None,
+            8,
+            "after the LSTM `lstm` the file has the layers `head.0` [32, 32], `head.2` [2, 32]",
+        ),
+        // A dual state_dict whose names do not give the concatenation order.
+        (
+            fixture("torch_d_bands_first.safetensors"),
+            None,
+            10,
+            "pass --dual-order force,bands or --dual-order bands,force",
+        ),
+        (fixture("bad_layout1.onnx"), Some(&ds), 8, "layout=1"),
+        (
+            fixture("bad_seqlens_short.onnx"),
+            Some(&os),
+            8,
+            "sequence_lens [15.0] differs from the sequence length 20",
+        ),
+        (
+            fixture("bad_seqlens_dynamic.onnx"),
+            Some(&os),
+            8,
+            "declares no fixed sequence length",
+        ),
+        // Messages that name the cause.
+        (fixture("bad_gru.safetensors"), None, 8, "is a GRU (nn.GRU"),
+        (
+            fixture("bad_torch_save.pt"),
+            None,
+            4,
+            "a PyTorch pickle (torch.save), which the exporter does not read",
+        ),
+        (
+            fixture("bad_torch_save.pt"),
+            None,
+            4,
+            "save_file(model.state_dict(), \"model.safetensors\")",
+        ),
+        (
+            fixture("bad_two_layers_dynamic.onnx"),
+            Some(&os),
+            8,
+            "stacked LSTMs (2 layers)",
+        ),
+    ];
+    for (model, settings, code, needle) in cases {
+        let mut args = vec!["export", s(&model), "-o", s(&out)];
+        if let Some(st) = settings {
+            args.extend(["--settings", s(st)]);
+        }
+        expect_fail(&args, code, needle);
+    }
+    // A constant sequence_lens equal to the declared sequence length runs every step: accepted.
+    let o = run(&[
+        "export",
+        s(&fixture("onnx_static_seqlens_ok.onnx")),
+        "--settings",
+        s(&os),
+        "-o",
+        s(&out),
+        "--no-report",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // --dual-order given, or contradicting what the graph says.
+    let o = run(&[
+        "export",
+        s(&fixture("torch_d_bands_first.safetensors")),
+        "--dual-order",
+        "bands,force",
+        "-o",
+        s(&out),
+        "--no-report",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    expect_fail(
+        &[
+            "export",
+            s(&fixture("onnx_d_legacy.onnx")),
+            "--settings",
+            s(&fixture("onnx_d_legacy.settings.json")),
+            "--dual-order",
+            "force,bands",
+            "-o",
+            s(&out),
+        ],
+        10,
+        "--dual-order says otherwise",
+    );
+    expect_fail(
+        &[
+            "export",
+            s(&fixture("torch_d.safetensors")),
+            "--dual-order",
+            "sideways",
+            "-o",
+            s(&out),
+        ],
+        10,
+        "`sideways` is not force,bands or bands,force",
+    );
+    // A bare .weights.h5 of a dual model: no config, so no concatenation order.
+    let keras_d = std::fs::read(fixture("keras_d.keras")).unwrap();
+    let mut z = zip::ZipArchive::new(std::io::Cursor::new(keras_d)).unwrap();
+    let mut h5 = Vec::new();
+    std::io::Read::read_to_end(&mut z.by_name("model.weights.h5").unwrap(), &mut h5).unwrap();
+    let p = d.join("dual.weights.h5");
+    std::fs::write(&p, h5).unwrap();
+    expect_fail(
+        &[
+            "export",
+            s(&p),
+            "--settings",
+            s(&fixture("keras_d.settings.json")),
+            "-o",
+            s(&out),
+        ],
+        10,
+        "--dual-order",
+    );
+}
+
+/// The NaN/Inf index is given in the file's own layout (the element's index in its shape).
+#[test]
+fn nan_index_is_given_in_the_files_layout() {
+    let d = tmp("nan-layout");
+    let (mut t, meta) = read_st(&fixture("torch_c.safetensors"));
+    for x in t.iter_mut().filter(|x| x.0 == "lstm.weight_hh_l0") {
+        // [64, 16]: flat 37 = row 2, column 5.
+        x.3[37 * 4..38 * 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    }
+    let p = d.join("nan.safetensors");
+    write_st(&p, &t, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&d.join("m.bin"))],
+        7,
+        "flat index 37 = NaN, element [2, 5] of its shape [64, 16] as stored in the file",
+    );
+}
+
+/// Export warns in the terminal when there is no calibration data, and when the blob is over
+/// the fidelity bounds; verify fails (13) at the same bounds.
+#[test]
+fn export_warns_and_verify_fails_at_the_fidelity_bounds() {
+    let d = tmp("warn");
+    let out = d.join("m.bin");
+    let o = run(&[
+        "export",
+        s(&fixture("torch_c.safetensors")),
+        "-o",
+        s(&out),
+        "--no-report",
+    ]);
+    assert!(o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("warning: no --data: the cell state uses the default format Q4.11 (±16)"),
+        "{err}"
+    );
+    // A cell format of ±16 384 with 1 fractional bit: far off the float model.
+    let o = run(&[
+        "export",
+        s(&fixture("torch_c.safetensors")),
+        "--data",
+        s(&data_dir()),
+        "--max-trials",
+        "5",
+        "--cell-bits",
+        "1",
+        "-o",
+        s(&out),
+        "--no-report",
+        "-q",
+    ]);
+    assert!(o.status.success());
+    let (stdout, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    println!("{stdout}{err}");
+    assert!(
+        err.contains("warning: the blob does not follow the float model closely enough: max |Δp|"),
+        "{err}"
+    );
+    assert!(stdout.contains("worst step: trial "), "{stdout}");
+    // The loss attribution points at the cause: the cell format, not the weights.
+    assert!(
+        err.contains("hint: the weights rounded alone give")
+            && err.contains("--cell-bits, now [1]"),
+        "{err}"
+    );
+    expect_fail(
+        &[
+            "verify",
+            s(&out),
+            "--float",
+            s(&fixture("torch_c.safetensors")),
+            "--data",
+            s(&data_dir()),
+            "--max-trials",
+            "5",
+            "-q",
+        ],
+        13,
+        "over every step of",
+    );
+}
+
+/// `run` prints the blob's p per step for a raw trace: it follows torch's p on the fixture's
+/// trace (the quantized bound of tests/library_fixtures.rs), and `--check-features` accepts
+/// torch's own features and refuses them with the bands in the wrong unit (|X_k| instead of
+/// |X_k|/N before normalisation, i.e. ×N after it, roughly).
+#[test]
+fn run_dumps_p_per_step_and_checks_features() {
+    let d = tmp("run");
+    let blob = d.join("m.bin");
+    let o = run(&[
+        "export",
+        s(&fixture("torch_c.safetensors")),
+        "--cell-bits",
+        "10",
+        "-o",
+        s(&blob),
+        "--no-report",
+    ]);
+    assert!(o.status.success());
+    let exp: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture("torch_c.expected.json")).unwrap())
+            .unwrap();
+    let seq = &exp["sequences"][0];
+    let nums = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let (raw, p_torch, feats) = (nums(&seq["raw"]), nums(&seq["p"]), nums(&seq["features"]));
+    let trace = d.join("trace.csv");
+    let mut text = String::from("force_mN\n");
+    for r in &raw {
+        text.push_str(&format!("{r}\n"));
+    }
+    std::fs::write(&trace, text).unwrap();
+    let o = run(&["run", s(&blob), s(&trace)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let mut lines = stdout.lines();
+    assert_eq!(lines.next(), Some("step,p_force_mN,flag_force_mN"));
+    let mut worst = 0f64;
+    let mut n = 0;
+    for (line, pt) in lines.zip(&p_torch) {
+        let p: f64 = line.split(',').nth(1).unwrap().parse().unwrap();
+        worst = worst.max((p - pt).abs());
+        n += 1;
+    }
+    println!("run: {n} steps, max |p_blob − p_torch| {worst:.4}");
+    assert_eq!(n, raw.len());
+    assert!(worst < 0.01, "{worst}");
+
+    let nf = feats.len() / raw.len();
+    let write_feats = |name: &str, scale_bands: f64| {
+        let p = d.join(name);
+        let mut t = String::new();
+        for row in feats.chunks(nf) {
+            let v: Vec<String> = row
+                .iter()
+                .enumerate()
+                .map(|(j, x)| format!("{}", if j >= 2 { x * scale_bands } else { *x }))
+                .collect();
+            t.push_str(&v.join(","));
+            t.push('\n');
+        }
+        std::fs::write(&p, t).unwrap();
+        p
+    };
+    let good = write_feats("good.csv", 1.0);
+    let o = run(&["run", s(&blob), s(&trace), "--check-features", s(&good)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bad = write_feats("bad.csv", 20.0);
+    expect_fail(
+        &["run", s(&blob), s(&trace), "--check-features", s(&bad)],
+        13,
+        "differs from the blob's front end",
+    );
+    // From the features: the same p as from the raw trace, within the Q3.12 rounding.
+    let o = run(&["run", s(&blob), s(&good), "--features"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let from_feats: Vec<f64> = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
+        .collect();
+    let worst = from_feats
+        .iter()
+        .zip(&p_torch)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0f64, f64::max);
+    println!("run --features: max |p_blob − p_torch| {worst:.4}");
+    assert!(worst < 0.01, "{worst}");
+}
+
+/// Shapes in a safetensors header are bounded too: a [0, 2^62] tensor holds no bytes (so the
+/// container is valid) but must not reach `3 * H` or `4 * H`.
+#[test]
+fn huge_safetensors_dimensions_exit_9() {
+    let d = tmp("st-dims");
+    let (mut t, meta) = read_st(&fixture("torch_c.safetensors"));
+    for x in t.iter_mut() {
+        if x.0 == "lstm.weight_ih_l0" || x.0 == "lstm.weight_hh_l0" {
+            x.2 = vec![0, 1 << 62];
+            x.3.clear();
+        }
+    }
+    let p = d.join("huge.safetensors");
+    write_st(&p, &t, &meta);
+    expect_fail(
+        &["export", s(&p), "-o", s(&d.join("m.bin"))],
+        9,
+        "has a dimension of 4611686018427387904",
+    );
 }

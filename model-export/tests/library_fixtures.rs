@@ -41,7 +41,16 @@ fn check(model_file: &str, settings: Option<&str>, expected: &str) -> Errors {
         settings_file: settings.map(fixture),
         ..Default::default()
     };
-    let loaded = load_float(&src).unwrap_or_else(|e| panic!("{model_file}: {e}"));
+    check_src(&src, expected)
+}
+
+fn check_src(src: &ModelSource, expected: &str) -> Errors {
+    let model_file = src
+        .path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let loaded = load_float(src).unwrap_or_else(|e| panic!("{model_file}: {e}"));
     assert!(
         loaded.norm_given,
         "{model_file}: normalisation should come with the settings"
@@ -253,6 +262,56 @@ fn keras_dual_concatenated_bands_first() {
             "keras_d.expected.json",
         ),
         "keras_d",
+    );
+}
+
+/// torch's default exporter (dynamo, opset 18+) at hidden 64: R (and for some variants W)
+/// arrives as a constant subgraph (Slice/Concat/… of initializers), folded by the importer.
+#[test]
+fn onnx_default_dynamo_export_at_hidden_64_all_four_variants() {
+    for v in ["a", "b", "c", "d"] {
+        let name = format!("dynamo64_{v}");
+        let e = check(
+            &format!("{name}.onnx"),
+            Some(&format!("{name}.settings.json")),
+            &format!("{name}.expected.json"),
+        );
+        // Float import as tight as the other routes; blob vs library measured ≤ 0.0014.
+        assert!(e.features < 1e-5 && e.logits < 1e-4, "{name}: {}", e.logits);
+        assert!(e.p_end_to_end < 1e-4, "{name}: {}", e.p_end_to_end);
+        assert!(e.quant_vs_library < 0.003, "{name}: {}", e.quant_vs_library);
+    }
+}
+
+/// A dual state_dict whose names do not say in which order the hidden states were
+/// concatenated: with `--dual-order bands,force` it matches torch; without it the import is
+/// refused (tests/cli.rs); with the wrong order it is far off.
+#[test]
+fn safetensors_dual_with_explicit_dual_order() {
+    let src = |order: &str| ModelSource {
+        path: fixture("torch_d_bands_first.safetensors"),
+        overrides: vec![("dual_order".into(), order.into())],
+        ..Default::default()
+    };
+    assert_close(
+        &check_src(&src("bands,force"), "torch_d_bands_first.expected.json"),
+        "torch_d_bands_first",
+    );
+    let wrong = check_src(&src("force,bands"), "torch_d_bands_first.expected.json");
+    println!("wrong --dual-order: max |Δlogit| {:.3}", wrong.logits);
+    assert!(wrong.logits > 0.05, "{}", wrong.logits);
+}
+
+/// Keras LSTM and Dense with use_bias=False: no bias datasets in the file, zero biases.
+#[test]
+fn keras_without_biases() {
+    assert_close(
+        &check(
+            "keras_c_nobias.keras",
+            Some("keras_c_nobias.settings.json"),
+            "keras_c_nobias.expected.json",
+        ),
+        "keras_c_nobias",
     );
 }
 

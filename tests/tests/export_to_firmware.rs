@@ -27,6 +27,7 @@ fn exporter_reproduces_the_shipped_hand_force_blob() {
         fit_norm: false,
         cell_bits: None,
         quiet: true,
+        no_holdout: false,
     };
     let out = export(&opts).expect("export of the shipped checkpoint");
     assert_eq!(out.blob.len(), shipped.len());

@@ -18,8 +18,8 @@ use std::path::Path;
 use serde_json::Value;
 use slipguard_core::float::FloatLstm;
 
-use super::{Format, Imported, NamedDense, NamedLstm, dims, transpose};
-use crate::error::{ExportError, Result};
+use super::{Format, Imported, NamedDense, NamedLstm, dims, element_count, transpose};
+use crate::error::{ExportError, Result, check_finite_in};
 
 /// What the config says about one layer.
 #[derive(Clone, Debug)]
@@ -255,12 +255,36 @@ struct H5Weights {
     dense: Option<H5Layer<2>>,
 }
 
-fn read_ds(path: &Path, f: &hdf5_reader::Hdf5File, name: &str) -> Result<(Vec<usize>, Vec<f32>)> {
+fn read_ds(
+    path: &Path,
+    f: &hdf5_reader::Hdf5File,
+    file_len: usize,
+    name: &str,
+) -> Result<(Vec<usize>, Vec<f32>)> {
     let ds = f.dataset(name).map_err(|e| {
         ExportError::missing(name, format!("not readable in {}: {e}", path.display()))
     })?;
+    // Sizes come from the file: bounded before anything is allocated.
+    let n = element_count(name, ds.shape())?;
     let shape: Vec<usize> = ds.shape().iter().map(|&d| d as usize).collect();
-    let n: usize = shape.iter().product();
+    if let Some(chunk) = ds.chunks() {
+        // The decoder allocates a chunk at a time: its shape is bounded like the dataset's.
+        let c64: Vec<u64> = chunk.iter().map(|&c| c as u64).collect();
+        element_count(&format!("{name} (chunk)"), &c64)?;
+    } else {
+        // Contiguous (uncompressed) storage, as Keras writes it, lies inside the file.
+        let elem = ds.raw_element_size().unwrap_or(1).max(1);
+        if n.saturating_mul(elem) > file_len {
+            return Err(ExportError::format(
+                path,
+                format!(
+                    "dataset `{name}` of shape {} needs {} bytes, more than the whole file ({file_len} bytes; truncated or malformed)",
+                    dims(&shape),
+                    n.saturating_mul(elem)
+                ),
+            ));
+        }
+    }
     let mut v = vec![0f32; n];
     if ds.read_into(&mut v).is_err() {
         let mut d = vec![0f64; n];
@@ -268,7 +292,15 @@ fn read_ds(path: &Path, f: &hdf5_reader::Hdf5File, name: &str) -> Result<(Vec<us
             .map_err(|e| ExportError::format(path, format!("dataset `{name}`: {e}")))?;
         v = d.into_iter().map(|x| x as f32).collect();
     }
+    check_finite_in(name, &shape, &v)?;
     Ok((shape, v))
+}
+
+/// Whether `group` has a member `name` (a missing group reads as no member).
+fn has_member(f: &hdf5_reader::Hdf5File, group: &str, name: &str) -> bool {
+    f.group(group)
+        .and_then(|g| g.member_names())
+        .is_ok_and(|(groups, datasets)| groups.iter().chain(&datasets).any(|m| m == name))
 }
 
 fn suffix_num(name: &str, base: &str) -> Option<u32> {
@@ -280,6 +312,7 @@ fn suffix_num(name: &str, base: &str) -> Option<u32> {
 }
 
 fn read_h5(path: &Path, bytes: Vec<u8>) -> Result<H5Weights> {
+    let file_len = bytes.len();
     let f = hdf5_reader::Hdf5File::from_vec(bytes)
         .map_err(|e| ExportError::format(path, format!("not a readable HDF5 file: {e}")))?;
     let layers = f.group("layers").map_err(|e| {
@@ -314,8 +347,13 @@ fn read_h5(path: &Path, bytes: Vec<u8>) -> Result<H5Weights> {
     for (_, g) in lstm_groups {
         let mut shapes: [Vec<usize>; 3] = Default::default();
         let mut vals: [Vec<f32>; 3] = Default::default();
+        let vars = format!("layers/{g}/cell/vars");
         for k in 0..3 {
-            let (s, v) = read_ds(path, &f, &format!("layers/{g}/cell/vars/{k}"))?;
+            // vars/2 (bias) is absent for LSTM(use_bias=False): zero biases.
+            if k == 2 && !has_member(&f, &vars, "2") {
+                continue;
+            }
+            let (s, v) = read_ds(path, &f, file_len, &format!("{vars}/{k}"))?;
             shapes[k] = s;
             vals[k] = v;
         }
@@ -334,8 +372,13 @@ fn read_h5(path: &Path, bytes: Vec<u8>) -> Result<H5Weights> {
     }
     let dense = match dense_groups.first() {
         Some((_, g)) => {
-            let (s0, v0) = read_ds(path, &f, &format!("layers/{g}/vars/0"))?;
-            let (s1, v1) = read_ds(path, &f, &format!("layers/{g}/vars/1"))?;
+            let (s0, v0) = read_ds(path, &f, file_len, &format!("layers/{g}/vars/0"))?;
+            // vars/1 (bias) is absent for Dense(use_bias=False): zero biases.
+            let (s1, v1) = if has_member(&f, &format!("layers/{g}/vars"), "1") {
+                read_ds(path, &f, file_len, &format!("layers/{g}/vars/1"))?
+            } else {
+                (Vec::new(), Vec::new())
+            };
             Some((format!("layers/{g}/vars"), [s0, s1], [v0, v1]))
         }
         None => None,
@@ -376,7 +419,10 @@ fn to_imported(
             ));
         }
         let i = ks[0];
-        let b_ih = if bs.is_empty() || vals[2].is_empty() {
+        let b_ih = if bs.is_empty() && vals[2].is_empty() {
+            notes.push(format!(
+                "`{base}` has no bias (LSTM use_bias=False): zero biases"
+            ));
             vec![0.0; 4 * h]
         } else if *bs == [4 * h] {
             vals[2].clone()
@@ -420,9 +466,16 @@ fn to_imported(
         return Err(ExportError::shape(&wn, "[K, 2]", dims(&ws)));
     }
     let (k, o) = (ws[0], ws[1]);
-    if bs != [o] {
+    let bv = if bs.is_empty() && bv.is_empty() {
+        notes.push(format!(
+            "`{base}` has no bias (Dense use_bias=False): zero biases"
+        ));
+        vec![0.0; o]
+    } else if bs == [o] {
+        bv
+    } else {
         return Err(ExportError::shape(&bn, format!("[{o}]"), dims(&bs)));
-    }
+    };
     let mut concat_order_known = lstms.len() == 1;
     if let Some(order) = concat
         && lstms.len() == 2
@@ -480,18 +533,29 @@ fn with_config(
         ));
     }
     for (l, (base, shapes, _)) in lstm_layers.iter().zip(&w.lstms) {
-        let units = l.config.get("units").and_then(Value::as_u64).unwrap_or(0) as usize;
-        if shapes[1].first() != Some(&units) {
+        let units = l.config.get("units").and_then(Value::as_u64).unwrap_or(0);
+        if shapes[1].first().map(|&d| d as u64) != Some(units) {
             return Err(ExportError::shape(
                 format!("{base}/1 (recurrent_kernel of `{}`)", l.name),
-                format!("[{units}, {}]", 4 * units),
+                format!("[{units}, {}]", units.saturating_mul(4)),
                 dims(&shapes[1]),
+            ));
+        }
+        let use_bias = l.config.get("use_bias").and_then(Value::as_bool) != Some(false);
+        if use_bias && shapes[2].is_empty() {
+            return Err(ExportError::missing(
+                format!("{base}/2 (bias of `{}`)", l.name),
+                "the config says use_bias=True but the weights file has no bias",
             ));
         }
     }
     let names = lstm_layers.iter().map(|l| l.name.clone()).collect();
     to_imported(w, Some(names), concat, notes, format)
 }
+
+/// Largest `config.json` or `model.weights.h5` read from a `.keras` archive: 256 MiB, the
+/// f32 bytes of [`super::MAX_TENSOR_ELEMENTS`] values several times over.
+pub const MAX_ARCHIVE_ENTRY: u64 = 256 << 20;
 
 /// Reads a `.keras` archive.
 pub fn import_keras(path: &Path, bytes: &[u8]) -> Result<Imported> {
@@ -505,10 +569,32 @@ pub fn import_keras(path: &Path, bytes: &[u8]) -> Result<Imported> {
                 format!("`{name}` missing from the .keras archive: {e}"),
             )
         })?;
+        // The sizes in a zip are the file's claims: bounded, and the read capped at the bound
+        // whatever the entry decompresses to.
+        if f.size() > MAX_ARCHIVE_ENTRY {
+            return Err(ExportError::format(
+                path,
+                format!(
+                    "`{name}` in the archive declares {} bytes, over the importer's bound of {MAX_ARCHIVE_ENTRY} (a model the firmware can run is a few MB at most)",
+                    f.size()
+                ),
+            ));
+        }
         let mut v = Vec::new();
-        f.read_to_end(&mut v).map_err(|e| {
-            ExportError::format(path, format!("`{name}` in the archive is unreadable: {e}"))
-        })?;
+        (&mut f)
+            .take(MAX_ARCHIVE_ENTRY + 1)
+            .read_to_end(&mut v)
+            .map_err(|e| {
+                ExportError::format(path, format!("`{name}` in the archive is unreadable: {e}"))
+            })?;
+        if v.len() as u64 > MAX_ARCHIVE_ENTRY {
+            return Err(ExportError::format(
+                path,
+                format!(
+                    "`{name}` in the archive decompresses to more than {MAX_ARCHIVE_ENTRY} bytes"
+                ),
+            ));
+        }
         Ok(v)
     };
     let config = String::from_utf8(read("config.json")?)
@@ -531,5 +617,64 @@ pub fn import_h5(path: &Path, bytes: Vec<u8>, config: Option<&Path>) -> Result<I
             ];
             to_imported(w, None, None, notes, Format::KerasH5)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const H5: &[u8] = include_bytes!("../../tests/fixtures/keras_c.weights.h5");
+
+    /// The fixture with every dataspace whose dims (and max dims) read `from` rewritten to `to`
+    /// (u64 little-endian, as HDF5 stores dataspace dimensions).
+    fn patched(from: [u64; 2], to: [u64; 2]) -> Vec<u8> {
+        let enc = |d: [u64; 2]| -> Vec<u8> { d.iter().flat_map(|x| x.to_le_bytes()).collect() };
+        let (pat, rep) = (enc(from), enc(to));
+        let mut b = H5.to_vec();
+        let mut hits = 0;
+        let mut i = 0;
+        while i + pat.len() <= b.len() {
+            if b[i..i + pat.len()] == pat[..] {
+                b[i..i + pat.len()].copy_from_slice(&rep);
+                hits += 1;
+                i += pat.len();
+            } else {
+                i += 1;
+            }
+        }
+        assert!(hits >= 1, "pattern {from:?} not in the fixture");
+        b
+    }
+
+    fn err_of(bytes: Vec<u8>) -> ExportError {
+        match import_h5(Path::new("crafted.weights.h5"), bytes, None) {
+            Ok(_) => panic!("a crafted file was accepted"),
+            Err(e) => e,
+        }
+    }
+
+    #[test]
+    fn the_unpatched_fixture_imports() {
+        let imp = import_h5(Path::new("keras_c.weights.h5"), H5.to_vec(), None).expect("import");
+        assert_eq!(imp.lstms[0].lstm.hidden, 16);
+    }
+
+    #[test]
+    fn huge_dataset_dimensions_are_refused_before_allocating() {
+        // recurrent_kernel [16, 64] → [2^33, 64]: 2^39 elements (2 TiB as f32).
+        let e = err_of(patched([16, 64], [1 << 33, 64]));
+        assert_eq!(e.exit_code(), 9, "{e}");
+        assert!(e.to_string().contains("layers/lstm/cell/vars/1"), "{e}");
+        // A product that overflows u64: [2^40, 2^40].
+        let e = err_of(patched([16, 64], [1 << 40, 1 << 40]));
+        assert_eq!(e.exit_code(), 9, "{e}");
+        // A zero next to a huge dimension (product 0): still bounded per dimension.
+        let e = err_of(patched([11, 64], [0, 1 << 62]));
+        assert_eq!(e.exit_code(), 9, "{e}");
+        // Under the element bound but larger than the whole file (contiguous storage).
+        let e = err_of(patched([16, 64], [4096, 64]));
+        assert_eq!(e.exit_code(), 4, "{e}");
+        assert!(e.to_string().contains("more than the whole file"), "{e}");
     }
 }

@@ -7,6 +7,7 @@
 
 pub mod keras;
 pub mod onnx;
+mod onnx_fold;
 mod onnx_proto;
 pub mod torch;
 
@@ -18,7 +19,7 @@ use slipguard_core::blob::Variant;
 use slipguard_core::float::{FloatDense, FloatLstm, FloatModel, FloatModelError};
 
 use crate::error::{ExportError, Result, check_finite};
-use crate::settings::Resolved;
+use crate::settings::{DualOrder, Resolved};
 
 /// Input formats.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -124,6 +125,12 @@ pub fn import(
     keras_config: Option<&Path>,
 ) -> Result<Imported> {
     let bytes = std::fs::read(path).map_err(|e| ExportError::io(path, e))?;
+    if is_torch_pickle(path, &bytes) {
+        return Err(ExportError::format(
+            path,
+            "a PyTorch pickle (torch.save), which the exporter does not read (unpickling runs arbitrary code); save the weights as safetensors instead: `from safetensors.torch import save_file; save_file(model.state_dict(), \"model.safetensors\")`",
+        ));
+    }
     let format = match format.or_else(|| Format::detect(path, &bytes)) {
         Some(f) => f,
         None => {
@@ -141,6 +148,25 @@ pub fn import(
     }
 }
 
+/// Whether a file is what `torch.save` writes: a zip archive holding `…/data.pkl` (the format
+/// since torch 1.6), or a bare pickle (protocol 2+ starts with 0x80) named `.pt`/`.pth`.
+fn is_torch_pickle(path: &Path, bytes: &[u8]) -> bool {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let torch_name = [".pt", ".pth", ".ckpt", ".tar"]
+        .iter()
+        .any(|e| name.ends_with(e));
+    if bytes.starts_with(b"PK\x03\x04") {
+        return zip::ZipArchive::new(std::io::Cursor::new(bytes)).is_ok_and(|z| {
+            z.file_names()
+                .any(|n| n.is_ok_and(|n| n.ends_with("data.pkl")))
+        });
+    }
+    torch_name && bytes.first() == Some(&0x80)
+}
+
 fn shape_str(dims: &[usize]) -> String {
     format!(
         "[{}]",
@@ -154,6 +180,44 @@ fn shape_str(dims: &[usize]) -> String {
 /// `[a, b]` as text.
 pub fn dims(d: &[usize]) -> String {
     shape_str(d)
+}
+
+/// Largest element count of one tensor an importer reads from a file: 16 Mi values (64 MiB as
+/// f32), far above the firmware's largest tensor (4 · 128 × (128 + 12) = 71 680 weights of
+/// W_ih | W_hh), so that any model the firmware could run is read and then refused by size with
+/// its own message, while a malformed file cannot make the importer allocate gigabytes.
+pub const MAX_TENSOR_ELEMENTS: usize = 1 << 24;
+
+/// The element count of a tensor of shape `shape` read from a file: the product with checked
+/// arithmetic, refused (exit 9) when it overflows or is over [`MAX_TENSOR_ELEMENTS`]; every
+/// dimension is bounded too, so that later `4 * H` and `rows * cols` cannot overflow even when
+/// another dimension is 0.
+pub fn element_count(tensor: &str, shape: &[u64]) -> Result<usize> {
+    let over = |what: String| ExportError::OverBounds {
+        tensor: tensor.into(),
+        msg: format!(
+            "shape [{}] {what}, over the importer's bound of {MAX_TENSOR_ELEMENTS} elements per tensor (malformed file?)",
+            shape
+                .iter()
+                .map(|d| d.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
+    let mut n: u64 = 1;
+    for &d in shape {
+        if d > MAX_TENSOR_ELEMENTS as u64 {
+            return Err(over(format!("has a dimension of {d}")));
+        }
+        n = n
+            .checked_mul(d)
+            .ok_or_else(|| over("overflows 64 bits".to_string()))?;
+    }
+    if n > MAX_TENSOR_ELEMENTS as u64 {
+        return Err(over(format!("has {n} elements")));
+    }
+    // n ≤ 2^24 fits every usize the exporter builds for.
+    Ok(n as usize)
 }
 
 /// Role of each imported LSTM for a dual model: index of the force LSTM and of the band LSTM.
@@ -176,7 +240,13 @@ fn dual_roles(lstms: &[NamedLstm], force_in: usize, band_in: usize) -> Result<(u
     ) {
         (true, false) => Ok((0, 1)),
         (false, true) => Ok((1, 0)),
-        (true, true) => Ok((0, 1)),
+        (true, true) => Err(ExportError::missing(
+            format!("{} / {}", lstms[0].tensors[0], lstms[1].tensors[0]),
+            format!(
+                "both LSTMs take {force_in} inputs and their names (`{}`, `{}`) do not say which is the force path; name them with `force` and `bands` (e.g. lstm_force, lstm_bands)",
+                lstms[0].name, lstms[1].name
+            ),
+        )),
         (false, false) => Err(ExportError::shape(
             format!("{} / {}", lstms[0].tensors[0], lstms[1].tensors[0]),
             format!("one LSTM with {force_in} inputs (force path) and one with {band_in} (bands)"),
@@ -279,10 +349,42 @@ pub fn assemble(imp: &Imported, res: &Resolved) -> Result<(FloatModel, bool)> {
         ));
     }
     // Columns of each imported LSTM in the file's concatenation order.
-    let file_order: Vec<usize> = if imp.concat_order_known {
-        (0..imp.lstms.len()).collect()
+    let file_order: Vec<usize> = if need == 1 {
+        vec![0]
     } else {
-        order.clone()
+        let given = res.dual_order.map(|o| match o {
+            DualOrder::ForceBands => order.clone(),
+            DualOrder::BandsForce => vec![order[1], order[0]],
+        });
+        match (imp.concat_order_known, given) {
+            (true, None) => (0..imp.lstms.len()).collect(),
+            (true, Some(g)) => {
+                let read: Vec<usize> = (0..imp.lstms.len()).collect();
+                if g != read {
+                    return Err(ExportError::settings(
+                        "dual_order",
+                        format!(
+                            "the file concatenates [{}, {}], but --dual-order says otherwise",
+                            imp.lstms[0].name, imp.lstms[1].name
+                        ),
+                    ));
+                }
+                read
+            }
+            (false, Some(g)) => g,
+            (false, None) => {
+                return Err(ExportError::settings(
+                    "dual_order",
+                    format!(
+                        "the {} file does not say in which order the dense layer `{}` sees the hidden states of `{}` (force) and `{}` (bands); pass --dual-order force,bands or --dual-order bands,force",
+                        imp.format.name(),
+                        d.weight,
+                        imp.lstms[order[0]].name,
+                        imp.lstms[order[1]].name
+                    ),
+                ));
+            }
+        }
     };
     let mut col_start = vec![0usize; imp.lstms.len()];
     let mut off = 0;
@@ -366,7 +468,11 @@ pub fn assemble(imp: &Imported, res: &Resolved) -> Result<(FloatModel, bool)> {
             format!("{expected} elements"),
             format!("{found} elements"),
         ),
-        FloatModelError::NotFinite { tensor, index } => ExportError::NotFinite { tensor, index },
+        FloatModelError::NotFinite { tensor, index } => ExportError::NotFinite {
+            tensor,
+            index,
+            at: String::new(),
+        },
         other => ExportError::unsupported("model", other.to_string()),
     })?;
     Ok((model, given))

@@ -16,14 +16,16 @@ use prost::Message;
 use slipguard_core::float::FloatLstm;
 
 use super::onnx_proto::{ModelProto, NodeProto, TensorProto, data_type};
-use super::{Format, Imported, NamedDense, NamedLstm, dims, reorder_gates, transpose};
-use crate::error::{ExportError, Result};
+use super::{
+    Format, Imported, NamedDense, NamedLstm, dims, element_count, reorder_gates, transpose,
+};
+use crate::error::{ExportError, Result, check_finite_in};
 
 /// A constant: dims and values as f32.
 #[derive(Clone, Debug)]
-struct Const {
-    dims: Vec<usize>,
-    data: Vec<f32>,
+pub(super) struct Const {
+    pub(super) dims: Vec<usize>,
+    pub(super) data: Vec<f32>,
 }
 
 /// Reads the bytes of a tensor stored outside the .onnx (`data_location = EXTERNAL`, as
@@ -72,9 +74,23 @@ fn external_bytes(path: &Path, t: &TensorProto) -> Result<Vec<u8>> {
     };
     let offset = parse("offset")?.unwrap_or(0);
     let length = parse("length")?.unwrap_or(data.len().saturating_sub(offset));
-    data.get(offset..offset.saturating_add(length)).map(<[u8]>::to_vec).ok_or_else(|| {
-        ExportError::format(&file, format!("tensor `{}`: bytes {offset}..{} are past the end of the file ({} bytes; truncated?)", t.name, offset + length, data.len()))
-    })
+    // Both come from the file: the end is computed with checked arithmetic.
+    let past_end = |end: String| {
+        ExportError::format(
+            &file,
+            format!(
+                "tensor `{}`: external data bytes {offset}..{end} are past the end of the file ({} bytes; truncated?)",
+                t.name,
+                data.len()
+            ),
+        )
+    };
+    let end = offset
+        .checked_add(length)
+        .ok_or_else(|| past_end(format!("{offset} + {length} (overflows)")))?;
+    data.get(offset..end)
+        .map(<[u8]>::to_vec)
+        .ok_or_else(|| past_end(end.to_string()))
 }
 
 fn tensor_values(path: &Path, t: &TensorProto) -> Result<Const> {
@@ -85,8 +101,16 @@ fn tensor_values(path: &Path, t: &TensorProto) -> Result<Const> {
     } else {
         &t.raw_data
     };
-    let dims: Vec<usize> = t.dims.iter().map(|&d| d.max(0) as usize).collect();
-    let n: usize = dims.iter().product();
+    if let Some(&d) = t.dims.iter().find(|&&d| d < 0) {
+        return Err(ExportError::format(
+            path,
+            format!("tensor `{}` has a negative dimension {d}", t.name),
+        ));
+    }
+    let dims64: Vec<u64> = t.dims.iter().map(|&d| d as u64).collect();
+    // Bounded (checked product, at most MAX_TENSOR_ELEMENTS) before anything is decoded.
+    let n = element_count(&t.name, &dims64)?;
+    let dims: Vec<usize> = dims64.iter().map(|&d| d as usize).collect();
     let data: Vec<f32> = match t.data_type {
         data_type::FLOAT if !raw.is_empty() => raw
             .chunks_exact(4)
@@ -148,11 +172,14 @@ fn tensor_values(path: &Path, t: &TensorProto) -> Result<Const> {
     Ok(Const { dims, data })
 }
 
-fn attr<'a>(n: &'a NodeProto, name: &str) -> Option<&'a super::onnx_proto::AttributeProto> {
+pub(super) fn attr<'a>(
+    n: &'a NodeProto,
+    name: &str,
+) -> Option<&'a super::onnx_proto::AttributeProto> {
     n.attribute.iter().find(|a| a.name == name)
 }
 
-fn node_label(n: &NodeProto) -> String {
+pub(super) fn node_label(n: &NodeProto) -> String {
     if n.name.is_empty() {
         format!(
             "{} node → {}",
@@ -211,6 +238,9 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
             consts.insert(out.clone(), tensor_values(path, t)?);
         }
     }
+    // W, R, B computed from initializers by Slice/Concat/Reshape/… (torch's dynamo exporter
+    // for larger models): evaluated here, so that the LSTM reads constants.
+    let folded = super::onnx_fold::fold(graph, &mut consts)?;
     let producer: BTreeMap<&str, usize> = graph
         .node
         .iter()
@@ -284,21 +314,26 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
             "the ONNX graph has no LSTM node",
         ));
     }
-    let mut lstms = Vec::new();
+    // Stacking first, over every LSTM: a 2-layer model is refused as such, whatever else its
+    // layers carry (e.g. initial states sliced from one [2, B, H] tensor).
     for &li in &lstm_nodes {
         let n = &graph.node[li];
-        let label = node_label(n);
         if let Some(x) = n.input.first()
             && let Some(&below) = ancestors(x).iter().next()
         {
             return Err(ExportError::unsupported(
-                &label,
+                node_label(n),
                 format!(
-                    "stacked LSTMs: its input comes from {}; the firmware runs one LSTM layer per path (train with num_layers=1)",
+                    "stacked LSTMs (2 layers): its input comes from {}; the firmware runs one LSTM layer per path (train with num_layers=1)",
                     node_label(&graph.node[below])
                 ),
             ));
         }
+    }
+    let mut lstms = Vec::new();
+    for &li in &lstm_nodes {
+        let n = &graph.node[li];
+        let label = node_label(n);
         lstms.push(read_lstm(n, &label, &consts, &producer, graph)?);
     }
 
@@ -331,6 +366,7 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
     let dn = &graph.node[di];
     let wname = dn.input[1].clone();
     let wc = &consts[&wname];
+    check_finite_in(&wname, &wc.dims, &wc.data)?;
     if wc.dims.len() != 2 {
         return Err(ExportError::shape(
             &wname,
@@ -438,6 +474,16 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
             ),
         }
     }
+    if !folded.is_empty() {
+        notes.push(format!(
+            "constant subgraphs folded: {}",
+            folded
+                .iter()
+                .map(|(op, k)| format!("{k} × {op}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
     notes.push(format!(
         "producer {} {}, opset {}",
         model.producer_name,
@@ -482,11 +528,82 @@ fn is_zero_state(
         "ConstantOfShape" => attr(n, "value").and_then(|a| a.t.as_ref()).is_none_or(|t| {
             t.raw_data.iter().all(|&b| b == 0) && t.float_data.iter().all(|&x| x == 0.0)
         }),
-        "Expand" | "Tile" | "Reshape" | "Unsqueeze" | "Identity" | "Cast" => n
+        "Expand" | "Tile" | "Reshape" | "Unsqueeze" | "Squeeze" | "Identity" | "Cast" | "Slice"
+        | "Gather" | "Transpose" => n
             .input
             .first()
             .is_some_and(|x| is_zero_state(x, consts, producer, graph)),
         _ => false,
+    }
+}
+
+/// Static dims of a graph input or value, when the file declares them (`None` per symbolic dim).
+fn declared_dims(name: &str, graph: &super::onnx_proto::GraphProto) -> Option<Vec<Option<i64>>> {
+    let vi = graph
+        .input
+        .iter()
+        .chain(&graph.value_info)
+        .find(|v| v.name == name)?;
+    let shape = vi.r#type.as_ref()?.tensor_type.as_ref()?.shape.as_ref()?;
+    Some(
+        shape
+            .dim
+            .iter()
+            .map(|d| d.dim_value.filter(|&v| v > 0))
+            .collect(),
+    )
+}
+
+/// The LSTM's `sequence_lens` input masks steps past each sequence's length; the firmware runs
+/// an unbounded stream, so it is accepted only as a constant equal to the sequence length the
+/// graph declares (every step runs), and refused otherwise.
+fn check_sequence_lens(
+    sl: &str,
+    n: &NodeProto,
+    label: &str,
+    consts: &BTreeMap<String, Const>,
+    producer: &BTreeMap<&str, usize>,
+    graph: &super::onnx_proto::GraphProto,
+) -> Result<()> {
+    let refuse = |why: String| {
+        Err(ExportError::unsupported(
+            format!("{label} input sequence_lens `{sl}`"),
+            format!(
+                "{why}; the firmware runs every step of an unbounded stream (export without sequence_lens / packed sequences)"
+            ),
+        ))
+    };
+    let Some(c) = consts.get(sl) else {
+        return refuse("sequence_lens is computed by the graph, not a constant".into());
+    };
+    // X [T, B, I] (layout 0): T from X's declared shape, or from the graph input it is a
+    // Transpose of.
+    let x = n.input.first().map(String::as_str).unwrap_or("");
+    let mut t = declared_dims(x, graph).and_then(|d| d.first().copied().flatten());
+    if t.is_none()
+        && let Some(&p) = producer.get(x)
+    {
+        let pn = &graph.node[p];
+        if pn.op_type == "Transpose"
+            && let Some(src) = pn.input.first()
+            && let Some(d) = declared_dims(src, graph)
+        {
+            let perm: Vec<usize> = attr(pn, "perm")
+                .map(|a| a.ints.iter().map(|&i| i.max(0) as usize).collect())
+                .unwrap_or_else(|| (0..d.len()).rev().collect());
+            t = perm.first().and_then(|&a| d.get(a).copied().flatten());
+        }
+    }
+    match t {
+        Some(t) if c.data.iter().all(|&v| v == t as f32) => Ok(()),
+        Some(t) => refuse(format!(
+            "sequence_lens {:?} differs from the sequence length {t} the graph declares",
+            c.data
+        )),
+        None => refuse(format!(
+            "sequence_lens {:?} is given but the graph declares no fixed sequence length to compare it with",
+            c.data
+        )),
     }
 }
 
@@ -541,7 +658,19 @@ fn read_lstm(
             ));
         }
     }
+    if let Some(a) = n.attribute.iter().find(|a| a.name == "layout" && a.i != 0) {
+        return Err(ExportError::unsupported(
+            format!("{label} attribute layout"),
+            format!(
+                "layout={} (batch-major X [B, T, I]): the importer does not trace the Transposes around a batch-major LSTM, so it cannot tell whether time is on the axis the LSTM recurs over; export with layout=0 (what torch.onnx.export emits, also for batch_first=True)",
+                a.i
+            ),
+        ));
+    }
     let input = |k: usize| n.input.get(k).filter(|s| !s.is_empty());
+    if let Some(sl) = input(4) {
+        check_sequence_lens(sl, n, label, consts, producer, graph)?;
+    }
     let get = |k: usize, what: &str| -> Result<(&String, &Const)> {
         let name = input(k).ok_or_else(|| {
             ExportError::missing(
@@ -559,6 +688,8 @@ fn read_lstm(
     };
     let (wn, w) = get(1, "W")?;
     let (rn, r) = get(2, "R")?;
+    check_finite_in(wn, &w.dims, &w.data)?;
+    check_finite_in(rn, &r.dims, &r.data)?;
     if w.dims.len() != 3 || !w.dims[1].is_multiple_of(4) || w.dims[1] == 0 {
         return Err(ExportError::shape(wn, "[1, 4H, I]", dims(&w.dims)));
     }
@@ -574,11 +705,11 @@ fn read_lstm(
     let h = w.dims[1] / 4;
     let i = w.dims[2];
     if let Some(hs) = attr(n, "hidden_size")
-        && hs.i as usize != h
+        && hs.i != h as i64
     {
         return Err(ExportError::shape(
             wn,
-            format!("[1, {}, I] (hidden_size={})", 4 * hs.i, hs.i),
+            format!("[1, {}, I] (hidden_size={})", hs.i.saturating_mul(4), hs.i),
             dims(&w.dims),
         ));
     }
@@ -599,6 +730,7 @@ fn read_lstm(
                     dims(&b.dims),
                 ));
             }
+            check_finite_in(bn, &b.dims, &b.data)?;
             (bn.clone(), b.data.clone())
         }
         None => ("(none)".to_string(), vec![0.0; 8 * h]),
@@ -653,4 +785,158 @@ fn read_lstm(
             b_hh,
         },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::onnx_proto::{
+        AttributeProto, GraphProto, StringStringEntryProto, ValueInfoProto,
+    };
+    use super::*;
+
+    pub(super) fn tensor(name: &str, dims: &[i64], data: Vec<f32>) -> TensorProto {
+        TensorProto {
+            name: name.into(),
+            dims: dims.to_vec(),
+            data_type: data_type::FLOAT,
+            float_data: data,
+            ..Default::default()
+        }
+    }
+
+    pub(super) fn node(op: &str, inputs: &[&str], outputs: &[&str]) -> NodeProto {
+        NodeProto {
+            op_type: op.into(),
+            input: inputs.iter().map(|s| s.to_string()).collect(),
+            output: outputs.iter().map(|s| s.to_string()).collect(),
+            ..Default::default()
+        }
+    }
+
+    pub(super) fn int_attr(name: &str, i: i64) -> AttributeProto {
+        AttributeProto {
+            name: name.into(),
+            i,
+            r#type: 2,
+            ..Default::default()
+        }
+    }
+
+    /// x [T, 1, I] → LSTM(H) → Squeeze → MatMul [H, 2] → Add [2]: the smallest graph the
+    /// importer accepts, with W, R, B given by the caller.
+    pub(super) fn graph(w: TensorProto, r: TensorProto, b: TensorProto, h: usize) -> ModelProto {
+        let lstm = node("LSTM", &["x", &w.name, &r.name, &b.name], &["y", "", ""]);
+        let wd = tensor("wd", &[h as i64, 2], vec![0.5; 2 * h]);
+        let bd = tensor("bd", &[2], vec![0.0, 0.1]);
+        ModelProto {
+            graph: Some(GraphProto {
+                node: vec![
+                    lstm,
+                    node("Squeeze", &["y"], &["ys"]),
+                    node("MatMul", &["ys", "wd"], &["m"]),
+                    node("Add", &["m", "bd"], &["logits"]),
+                ],
+                initializer: vec![w, r, b, wd, bd],
+                input: vec![ValueInfoProto {
+                    name: "x".into(),
+                    ..Default::default()
+                }],
+                ..Default::default()
+            }),
+            ..Default::default()
+        }
+    }
+
+    pub(super) fn plain(i: usize, h: usize) -> ModelProto {
+        graph(
+            tensor("W", &[1, 4 * h as i64, i as i64], vec![0.1; 4 * h * i]),
+            tensor("R", &[1, 4 * h as i64, h as i64], vec![0.1; 4 * h * h]),
+            tensor("B", &[1, 8 * h as i64], vec![0.0; 8 * h]),
+            h,
+        )
+    }
+
+    fn import_model(m: &ModelProto) -> Result<Imported> {
+        import(Path::new("crafted.onnx"), &m.encode_to_vec())
+    }
+
+    #[test]
+    fn the_crafted_graph_imports() {
+        let imp = import_model(&plain(3, 2)).expect("import");
+        assert_eq!((imp.lstms[0].lstm.input, imp.lstms[0].lstm.hidden), (3, 2));
+        assert_eq!(imp.dense.inputs, 2);
+    }
+
+    #[test]
+    fn hidden_size_attribute_near_i64_max_is_a_shape_error() {
+        for (hs, needle) in [
+            (
+                1i64 << 62,
+                "[1, 9223372036854775807, I] (hidden_size=4611686018427387904)",
+            ),
+            (-1, "(hidden_size=-1)"),
+        ] {
+            let mut m = plain(3, 2);
+            let g = m.graph.as_mut().expect("graph");
+            g.node[0].attribute.push(int_attr("hidden_size", hs));
+            let e = import_model(&m).expect_err("refused");
+            assert_eq!(e.exit_code(), 6, "{e}");
+            assert!(e.to_string().contains(needle), "{e}");
+        }
+    }
+
+    #[test]
+    fn huge_and_overflowing_dims_are_refused_before_decoding() {
+        for (dims, needle) in [
+            (
+                vec![1, 1 << 62, 3],
+                "has a dimension of 4611686018427387904",
+            ),
+            (vec![1 << 24, 1 << 24, 1 << 24], "overflows 64 bits"),
+            (vec![4096, 4096, 4096], "has 68719476736 elements"),
+            (vec![0, 1 << 40, 3], "has a dimension of"),
+        ] {
+            let mut m = plain(3, 2);
+            m.graph.as_mut().expect("graph").initializer[0].dims = dims.clone();
+            let e = import_model(&m).expect_err("refused");
+            assert_eq!(e.exit_code(), 9, "{dims:?}: {e}");
+            assert!(e.to_string().contains(needle), "{dims:?}: {e}");
+        }
+        let mut m = plain(3, 2);
+        m.graph.as_mut().expect("graph").initializer[1].dims = vec![1, -8, 2];
+        let e = import_model(&m).expect_err("refused");
+        assert_eq!(e.exit_code(), 4, "{e}");
+    }
+
+    #[test]
+    fn external_data_offset_plus_length_overflow_is_a_format_error() {
+        let dir = std::env::temp_dir().join(format!("slipguard-onnx-ext-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        std::fs::write(dir.join("w.data"), [0u8; 64]).expect("data");
+        for (offset, length, needle) in [
+            (u64::MAX - 3, 16, "overflows"),
+            (32, 48, "bytes 32..80 are past the end"),
+        ] {
+            let mut m = plain(1, 2);
+            let w = &mut m.graph.as_mut().expect("graph").initializer[0];
+            w.float_data.clear();
+            w.data_location = 1;
+            w.external_data = [
+                ("location", "w.data".to_string()),
+                ("offset", offset.to_string()),
+                ("length", length.to_string()),
+            ]
+            .into_iter()
+            .map(|(k, v)| StringStringEntryProto {
+                key: k.into(),
+                value: v,
+            })
+            .collect();
+            let path = dir.join("m.onnx");
+            let e = import(&path, &m.encode_to_vec()).expect_err("refused");
+            assert_eq!(e.exit_code(), 4, "{e}");
+            assert!(e.to_string().contains(needle), "{e}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -14,8 +14,8 @@ use std::path::Path;
 use safetensors::{Dtype, SafeTensors};
 use slipguard_core::float::FloatLstm;
 
-use super::{Format, Imported, NamedDense, NamedLstm, dims};
-use crate::error::{ExportError, Result};
+use super::{Format, Imported, NamedDense, NamedLstm, dims, element_count};
+use crate::error::{ExportError, Result, check_finite_in};
 
 /// A tensor converted to f32.
 struct T {
@@ -79,7 +79,11 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
 
     let mut tensors: BTreeMap<String, T> = BTreeMap::new();
     for (name, view) in st.tensors() {
+        // Shapes come from the file's header: every dimension bounded before `4 * H` and co.
+        let shape64: Vec<u64> = view.shape().iter().map(|&d| d as u64).collect();
+        element_count(&name, &shape64)?;
         let data = to_f32(&name, view.dtype(), view.data())?;
+        check_finite_in(&name, view.shape(), &data)?;
         tensors.insert(
             name,
             T {
@@ -90,8 +94,55 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
     }
     let names: Vec<String> = tensors.keys().cloned().collect();
     let (lstms, used) = find_lstms(&names, &tensors)?;
-    let (dense, dense_used) =
-        find_dense(&tensors, &used, lstms.iter().map(|l| l.lstm.hidden).sum())?;
+    let found = find_dense(&tensors, &used, lstms.iter().map(|l| l.lstm.hidden).sum());
+    // Parameters of layers that are neither the LSTMs nor the dense layer (a Linear → ReLU →
+    // Linear head, a LayerNorm, …): the network is not LSTM → one affine layer, refuse.
+    let dense_names: Vec<String> = match &found {
+        Ok((_, u)) => u.iter().cloned().collect(),
+        Err(_) => Vec::new(),
+    };
+    let extra: Vec<&String> = names
+        .iter()
+        .filter(|n| !used.contains(*n) && !dense_names.contains(n))
+        .filter(|n| n.ends_with("weight") || n.ends_with("bias"))
+        .collect();
+    if !extra.is_empty() {
+        // Name the layers (tensor prefixes) found, with their weight shapes.
+        let mut layers: Vec<String> = Vec::new();
+        let mut prefixes: Vec<String> = Vec::new();
+        let mut describe = |n: &str| {
+            let prefix = n
+                .strip_suffix("weight")
+                .or_else(|| n.strip_suffix("bias"))
+                .unwrap_or(n)
+                .trim_end_matches('.');
+            let w = format!("{prefix}.weight");
+            let shape = tensors
+                .get(&w)
+                .map_or("no weight".into(), |t| dims(&t.shape));
+            let l = format!("`{prefix}` {shape}");
+            if !layers.contains(&l) {
+                layers.push(l);
+                prefixes.push(prefix.to_string());
+            }
+        };
+        for n in &extra {
+            describe(n);
+        }
+        if let Ok((d, _)) = &found {
+            describe(&d.weight);
+        }
+        let lstm_names: Vec<String> = lstms.iter().map(|l| format!("`{}`", l.name)).collect();
+        return Err(ExportError::unsupported(
+            prefixes.join(", "),
+            format!(
+                "the head is not a single affine layer to 2 logits: after the LSTM {} the file has the layers {}; the firmware runs LSTM → one Linear(K, 2) (a second layer or an activation between them cannot be converted: retrain with one nn.Linear head)",
+                lstm_names.join(" and "),
+                layers.join(", ")
+            ),
+        ));
+    }
+    let (dense, dense_used) = found?;
     let mut notes = Vec::new();
     let ignored: Vec<&String> = names
         .iter()
@@ -107,10 +158,19 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
                 .join(", ")
         ));
     }
+    // A state_dict does not record the order of a concatenation; our trainer's names
+    // (`lstm_force.*`, `lstm_bands.*`, `dense.*`) declare [h_force, h_bands].
+    let mut lstms = lstms;
+    let names: Vec<&str> = lstms.iter().map(|l| l.name.as_str()).collect();
+    let trainer_dual = dense.weight == "dense.weight"
+        && (names == ["lstm_force", "lstm_bands"] || names == ["lstm_bands", "lstm_force"]);
+    if trainer_dual && lstms[0].name == "lstm_bands" {
+        lstms.swap(0, 1);
+    }
     Ok(Imported {
         format: Format::Safetensors,
         lstms,
-        concat_order_known: false,
+        concat_order_known: trainer_dual,
         dense,
         metadata,
         notes,
@@ -164,6 +224,26 @@ fn find_lstms(
                 format!("`{n}` is present but its recurrent weights are not"),
             )
         })?;
+        // nn.GRU (3 gate blocks) and nn.RNN (1) share the names; say so rather than "shape".
+        if let ([g, _], [gh, h]) = (wih.shape.as_slice(), whh.shape.as_slice())
+            && g == gh
+            && *h > 0
+            && (*g == 3 * h || g == h)
+        {
+            let what = if g == h {
+                "a plain RNN (nn.RNN: one gate block"
+            } else {
+                "a GRU (nn.GRU: 3 gate blocks r, z, n"
+            };
+            return Err(ExportError::unsupported(
+                prefix.trim_end_matches('.'),
+                format!(
+                    "`{n}` {} with `{whh_name}` {} is {what}, not the 4 of an LSTM); the firmware runs LSTM cells only: train with nn.LSTM",
+                    dims(&wih.shape),
+                    dims(&whh.shape)
+                ),
+            ));
+        }
         if wih.shape.len() != 2 || wih.shape[0] == 0 || !wih.shape[0].is_multiple_of(4) {
             return Err(ExportError::shape(n, "[4H, I]", dims(&wih.shape)));
         }
