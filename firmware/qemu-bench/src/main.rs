@@ -22,8 +22,9 @@ use slipguard_core::blob::{CRC32, LstmRowParams};
 use slipguard_core::const_math;
 use slipguard_core::decision::p_unstable;
 use slipguard_core::dsp::{
-    MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, dot_i8_i16, dot_i8_i16_fast, lstm_gate_sums,
-    lstm_gate_sums_portable, permute_q15, permute_q15_uninit,
+    BLOCK_ROWS, MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, MAX_BLOCK_H_CHUNKS,
+    MAX_BLOCK_X_CHUNKS, dot_i8_i16, dot_i8_i16_fast, lstm_block_sums, lstm_gate_sums,
+    lstm_gate_sums_portable, pack_lstm_blocks, permute_q15, permute_q15_uninit,
 };
 use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
 use slipguard_core::lstm::{self, LstmState};
@@ -233,6 +234,132 @@ fn check_lstm_kernel() {
     hprintln!("lstm kernel: {} cases", cases);
     harness::check_equal(
         "lstm kernel == portable (first layout, x words, h words)",
+        &first_bad,
+        &None,
+    );
+}
+
+/// Rows per call in the blocked-kernel checks: two blocks.
+const BLOCK_CHECK_ROWS: usize = 2 * BLOCK_ROWS;
+/// Largest row (bytes) in the blocked-kernel checks: both parts at their assembly maximum.
+const BLOCK_MAX_ROW: usize = 4 * (MAX_BLOCK_X_CHUNKS + MAX_BLOCK_H_CHUNKS);
+
+/// Weights for the blocked-kernel checks, word-aligned, plus 4 spare bytes for a misaligned view.
+#[repr(C, align(4))]
+struct BlockRows([i8; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
+
+/// The register-blocked LSTM kernel (`lstm_block_sums`, assembly on this target) on weights
+/// packed by `pack_lstm_blocks` against the row-major portable kernel on the original weights
+/// (`lstm_gate_sums_portable`, an independent path: other layout, other activation order), for
+/// every x part of 0..=3 chunks and h part of 0..=32 chunks, on random and extreme data; plus a
+/// misaligned and a too-short view (the portable fallback).
+fn check_block_kernel() {
+    let mut rng = Rng(0xb10c_0001);
+    let mut first_bad: Option<(&str, u32, usize, usize)> = None;
+    let mut cases = 0u32;
+    for pattern in 0..4u32 {
+        for xc in 0..=MAX_BLOCK_X_CHUNKS {
+            for hc in 0..=MAX_BLOCK_H_CHUNKS {
+                let (hh, stride) = (4 * xc, 4 * (xc + hc));
+                let len = BLOCK_CHECK_ROWS * stride;
+                // Row-major weights in [-127, 127] (the exporter's range), -128 in a rows too.
+                let mut w = BlockRows([0; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
+                for (i, b) in w.0[..len].iter_mut().enumerate() {
+                    let r = rng.next();
+                    let a_row = (i / stride.max(1)) % 2 == 0;
+                    *b = match pattern {
+                        0 => ((r % 255) as i32 - 127) as i8,
+                        1 => {
+                            if a_row {
+                                -128
+                            } else {
+                                -127
+                            }
+                        }
+                        2 => {
+                            if r & 1 == 0 {
+                                -127
+                            } else {
+                                127
+                            }
+                        }
+                        _ => {
+                            if a_row && r & 2 == 0 {
+                                -128
+                            } else if r & 1 == 0 {
+                                -127
+                            } else {
+                                127
+                            }
+                        }
+                    };
+                }
+                let mut v = [0i16; 4 * (MAX_BLOCK_X_CHUNKS + MAX_BLOCK_H_CHUNKS)];
+                for x in v[..stride].iter_mut() {
+                    let r = rng.next();
+                    *x = match pattern {
+                        0 => r as i16,
+                        1 => i16::MIN,
+                        _ => {
+                            if r & 4 == 0 {
+                                i16::MIN
+                            } else {
+                                i16::MAX
+                            }
+                        }
+                    };
+                }
+                let (xv, hv) = v[..stride].split_at(hh);
+                let natural = |v: &[i16], out: &mut [u32]| {
+                    for (o, p) in out.iter_mut().zip(v.chunks(2)) {
+                        *o = p[0] as u16 as u32 | (p[1] as u16 as u32) << 16;
+                    }
+                };
+                let (mut xn, mut hn) = (
+                    [0u32; 2 * MAX_BLOCK_X_CHUNKS],
+                    [0u32; 2 * MAX_BLOCK_H_CHUNKS],
+                );
+                natural(xv, &mut xn);
+                natural(hv, &mut hn);
+                let (mut xp, mut hp) = (
+                    [0u32; 2 * MAX_BLOCK_X_CHUNKS],
+                    [0u32; 2 * MAX_BLOCK_H_CHUNKS],
+                );
+                let xpn = permute_q15(xv, &mut xp);
+                let hpn = permute_q15(hv, &mut hp);
+                let mut want = [[0i32; 2]; BLOCK_CHECK_ROWS];
+                lstm_gate_sums_portable(&w.0[..len], stride, hh, &xp[..xpn], &hp[..hpn], &mut want);
+                let mut packed = BlockRows([0; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
+                if !pack_lstm_blocks(&w.0[..len], stride, &mut packed.0[..len]) && stride > 0 {
+                    first_bad.get_or_insert(("pack refused", pattern, xc, hc));
+                    continue;
+                }
+                // Aligned (assembly), then one byte off (portable fallback, after a copy).
+                for (name, start) in [("aligned", 0), ("misaligned", 1)] {
+                    if start == 1 {
+                        packed.0.copy_within(0..len, 1);
+                    }
+                    let wv = &packed.0[start..start + len];
+                    let mut buf = [MaybeUninit::<[i32; 2]>::uninit(); BLOCK_CHECK_ROWS];
+                    let got = lstm_block_sums(
+                        black_box(wv),
+                        stride,
+                        hh,
+                        &xn[..xc * 2],
+                        &hn[..hc * 2],
+                        &mut buf,
+                    );
+                    cases += 1;
+                    if got[..] != want[..] {
+                        first_bad.get_or_insert((name, pattern, xc, hc));
+                    }
+                }
+            }
+        }
+    }
+    hprintln!("lstm blocked kernel: {} cases", cases);
+    harness::check_equal(
+        "lstm blocked kernel == row-major portable (first layout, pattern, x chunks, h chunks)",
         &first_bad,
         &None,
     );
@@ -448,6 +575,7 @@ fn main() -> ! {
 
     check_dsp_kernel();
     check_lstm_kernel();
+    check_block_kernel();
     check_gate_pass();
     check_cell_update();
     check_dense_kernel();
