@@ -349,7 +349,14 @@ pub fn lstm_block_sums_portable(
 }
 
 /// Row `r` of [`lstm_block_sums_portable`].
-fn block_row(wb: &[i8], stride: usize, hh_offset: usize, x: &[u32], h: &[u32], r: usize) -> [i32; 2] {
+fn block_row(
+    wb: &[i8],
+    stride: usize,
+    hh_offset: usize,
+    x: &[u32],
+    h: &[u32],
+    r: usize,
+) -> [i32; 2] {
     let blk = (r / BLOCK_ROWS)
         .checked_mul(BLOCK_ROWS * stride)
         .and_then(|s| wb.get(s..))

@@ -189,7 +189,14 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
                 &hcopy[..hv / 2]
             }
         };
-        lstm_block_sums(t.weights, stride, t.hh_offset, &xw[..xn], hw, &mut acc[..rows])
+        lstm_block_sums(
+            t.weights,
+            stride,
+            t.hh_offset,
+            &xw[..xn],
+            hw,
+            &mut acc[..rows],
+        )
     } else {
         // x and h in the dot kernel's lane order, zero-padded to whole groups of 4 (the
         // weights' padding meets zeros, so the sums equal the plain dot products over I and H

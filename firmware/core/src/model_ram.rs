@@ -183,7 +183,10 @@ mod tests {
             bad[at] ^= 0x04;
             let bad = AlignedBlob::new(&bad);
             assert!(
-                matches!(bad.parse(), Err(BlobError::BadCrc { .. } | BlobError::BadMagic)),
+                matches!(
+                    bad.parse(),
+                    Err(BlobError::BadCrc { .. } | BlobError::BadMagic)
+                ),
                 "byte {at}"
             );
         }
