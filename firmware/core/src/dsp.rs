@@ -13,6 +13,10 @@
 //!   lane order*, in one assembly pass on `thumbv7em` with the DSP extension, into
 //!   uninitialised memory; elsewhere (the host, and any argument the kernel cannot take)
 //!   [`lstm_gate_sums_portable`], built on [`dot_i8_q15_permuted`], which defines the result.
+//! - [`lstm_block_sums`]: the same two dot products from weights in the *blocked layout* of
+//!   [`pack_lstm_blocks`] (the model's RAM image, [`crate::model_ram`]): register-blocked, 4 rows
+//!   per pass reusing each activation word (x and h in natural order) held in registers, about
+//!   1.25 cycles per MAC; reference [`lstm_block_sums_portable`].
 //! - [`lstm_gate_rows`]: the gate pass (requantisation, σ/tanh by interval table) in assembly;
 //!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
 //!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
