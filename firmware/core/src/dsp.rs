@@ -331,7 +331,7 @@ fn block_weight(blk: &[i8], q: usize, j: usize, i: usize) -> i32 {
     };
     let a = lo as i32;
     let v = i16::from_le_bytes([lo as u8, hi as u8]) as i32;
-    if q % 2 == 0 { a } else { (v - a) >> 8 }
+    if q.is_multiple_of(2) { a } else { (v - a) >> 8 }
 }
 
 /// The reference of [`lstm_block_sums`]: `out[r] = [Σ_k W[r][k]·x[k], Σ_k W[r][hh_offset + k]·h[k]]`
