@@ -36,7 +36,8 @@ read -r flash model ram < <(arm-none-eabi-size -A "$elf" | awk '
   $1 == ".data" || $1 == ".bss" || $1 == ".uninit" { r += $2 }
   END { print f + m, m, r }')
 
-model_ram_hex="$(arm-none-eabi-nm -S -C "$elf" | awk '$4 ~ /MODEL_RAM/ { print $2; exit }')"
+# (awk reads all of nm's output: an early exit would end nm with SIGPIPE under pipefail.)
+model_ram_hex="$(arm-none-eabi-nm -S -C "$elf" | awk '$4 ~ /MODEL_RAM/ && h == "" { h = $2 } END { print h }')"
 model_ram=$((16#${model_ram_hex:-0}))
 
 # Per part: the QEMU bench with the cycle plugin (its table and `cycles:` line).

@@ -201,8 +201,9 @@ async fn tx_task(mut tx: UartTx<'static, embassy_stm32::mode::Async>) {
 /// copies it into `ram` as the image the register-blocked LSTM kernel reads. Returns the bytes
 /// the application should run: the RAM image, or the region itself if the blob is bad (the
 /// application then reports why) or larger than the copy (it runs from flash, slower). Call it
-/// again after a new blob has been written to the MODEL region, once nothing borrows `ram`.
-fn load_model_into_ram(ram: &'static mut ModelRam) -> &'static [u8] {
+/// again after a new blob has been written to the MODEL region, once nothing borrows `ram` (the
+/// application built on the previous image must be dropped or given the new bytes first).
+fn load_model_into_ram(ram: &mut ModelRam) -> &[u8] {
     let capacity = ram.capacity();
     match ram.load(model_region()) {
         Ok(image) => {
