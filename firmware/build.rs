@@ -1,10 +1,9 @@
 //! Puts the chip's `memory.x` on the linker search path, where cortex-m-rt's `link.x` includes
-//! it (the repository's root `memory.x` for the STM32F405RG, `memory-f446re.x` for the
-//! STM32F446RE), and selects the model blob for the MODEL region (`build-model.rs`).
+//! it (the repository's root `memory.x` for the STM32F405RG, `memory-f446re.x` beside this file
+//! for the STM32F446RE), and gives the binary its linker scripts: cortex-m-rt's `link.x`,
+//! defmt's `defmt.x` and `model.x` (the MODEL region, written by `slipguard-support`).
 
 use std::{env, fs, path::PathBuf};
-
-include!("build-model.rs");
 
 fn main() {
     let manifest_dir =
@@ -19,7 +18,8 @@ fn main() {
         .unwrap_or_else(|e| panic!("copying {}: {e}", memory_x.display()));
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", memory_x.display());
-    println!("cargo:rerun-if-changed=build-model.rs");
     println!("cargo:rerun-if-changed=build.rs");
-    select_model_blob(&manifest_dir.join(".."), &out);
+    for arg in ["--nmagic", "-Tlink.x", "-Tdefmt.x", "-Tmodel.x"] {
+        println!("cargo:rustc-link-arg-bins={arg}");
+    }
 }

@@ -20,10 +20,12 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 strict=0
 [ "${1:-}" = "--strict" ] && strict=1
 
-(cd "$root/firmware" && cargo build --release -q)
+# Both binaries are in the firmware workspace (one target directory); one package per build, as
+# the board and QEMU binaries cannot share one feature resolution.
+(cd "$root/firmware" && cargo build --release -q -p slipguard-firmware)
 elf="${CARGO_TARGET_DIR:-$root/firmware/target}/thumbv7em-none-eabihf/release/slipguard-firmware"
-(cd "$root/firmware/qemu-app" && cargo build --release -q)
-qelf="${CARGO_TARGET_DIR:-$root/firmware/qemu-app/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
+(cd "$root/firmware" && cargo build --release -q -p slipguard-qemu-app)
+qelf="${CARGO_TARGET_DIR:-$root/firmware/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
 
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Builds firmware/qemu-bench in release and the project's cycle-estimate plugin
-# (firmware/qemu-bench/plugin/m4cycles.c, gcc), runs the bench under QEMU (mps2-an386,
+# Builds firmware/qemu-bench (a member of the firmware workspace) in release and the project's
+# cycle-estimate plugin (firmware/qemu-bench/plugin/m4cycles.c, gcc), runs the bench under QEMU
+# (mps2-an386,
 # -icount shift=0) with the plugin and a timeout, and prints the bench's output (exact
 # instruction counts, bit-exact checks), then per part the estimated Cortex-M4 cycles and CPU
 # shares, the machine-readable `cycles:` line and where the channel step's cycles go (per
@@ -19,12 +20,14 @@ mkdir -p "$work"
 [ -n "${QEMU_BENCH_OUT:-}" ] || trap 'rm -rf "$work"' EXIT
 
 (cd "$bench_dir" && cargo build --release "$@")
-elf="${CARGO_TARGET_DIR:-$bench_dir/target}/thumbv7em-none-eabihf/release/slipguard-qemu-bench"
+# The firmware workspace's one target directory. The plugin is passed to QEMU here, so the
+# cargo runner (firmware/cargo-runner.sh, used by `cargo run`) is not involved.
+elf="${CARGO_TARGET_DIR:-$root/firmware/target}/thumbv7em-none-eabihf/release/slipguard-qemu-bench"
 gcc -O2 -Wall -Wextra -Wno-unused-parameter -shared -fPIC -o "$work/libm4cycles.so" "$bench_dir/plugin/m4cycles.c"
 
-# The channel step's span (the bench's second measurement; checked against its `parts:` line
+# The channel step's span (the bench's third measurement; checked against its `parts:` line
 # below) is profiled per instruction address.
-step_span=2
+step_span=3
 status=0
 # No stdin: QEMU's -nographic monitor stays idle. The plugin writes to stderr.
 timeout --kill-after=10 "$timeout_s" qemu-system-arm -M mps2-an386 -nographic \

@@ -18,13 +18,13 @@ timeout_s="${QEMU_REPLAY_TIMEOUT:-300}"
 work="$(mktemp -d)"
 if [ "${KEEP_DIR:-0}" != 1 ]; then trap 'rm -rf "$work"' EXIT; else echo "qemu-replay: files in $work"; fi
 
-(cd "$root/firmware/qemu-app" && cargo build --release)
-elf="${CARGO_TARGET_DIR:-$root/firmware/qemu-app/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
+(cd "$root/firmware" && cargo build --release -p slipguard-qemu-app)
+elf="${CARGO_TARGET_DIR:-$root/firmware/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
 (cd "$root" && cargo build -q -p slipguard-host --bin slipguard)
 slipguard="${CARGO_TARGET_DIR:-$root/target}/debug/slipguard"
 trial="$root/firmware/app/fixtures/Cheez_100_814_top_3.csv"
 golden="$root/firmware/core/tests/fixtures/bench/model.bin"
-# The blob the build embeds, chosen by the same rule as firmware/build-model.rs.
+# The blob the build embeds, chosen by the same rule as firmware/support/build.rs.
 if [ -n "${SLIPGUARD_MODEL:-}" ]; then
   case "$SLIPGUARD_MODEL" in /*) model="$SLIPGUARD_MODEL" ;; *) model="$root/$SLIPGUARD_MODEL" ;; esac
 elif [ -f "$root/models/hand-force/hand-force.bin" ]; then

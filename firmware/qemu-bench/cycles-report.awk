@@ -55,6 +55,7 @@ END {
   printf "%-40s %9s %12s %10s %13s %13s %13s\n", "part (per call)", "insns", "est. cycles", "cycles/MAC", "flash stall", "16 ch 16.7 Hz", "16 ch 40 Hz"
   row("channel step (weights in RAM)", part["step"], macs, 16)
   row("channel step, weights read from flash", part["step_flash"], macs, 16)
+  row("channel step, plain RAM copy, row kernel", part["step_plain"], macs, 16)
   row("LSTM cell (11 -> 128)", part["lstm"], lmacs, 16)
   row("STFT (N = 20, 10 bands)", part["stft"], 0, 16)
   row("dense + softmax (128 -> p)", part["dense"], 0, 16)

@@ -36,6 +36,7 @@ use slipguard_app::replay;
 use slipguard_app::schedule::Deadline;
 use slipguard_core::model_ram::ModelRam;
 use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
+use slipguard_support::boot::ModelLine;
 use static_cell::{ConstStaticCell, StaticCell};
 use {defmt_rtt as _, panic_probe as _};
 
@@ -62,8 +63,8 @@ const BAUD: u32 = 921_600;
 /// Independent watchdog timeout: fed once per frame (every ≤ 60 ms) and on the stall path.
 const WATCHDOG_US: u32 = 1_000_000;
 
-// The default model blob in the `.model` section and `model_region()`.
-include!("../model-region.rs");
+// The MODEL flash region (default blob in the `.model` section, re-flashable on its own).
+use slipguard_support::model::{DEFAULT_BLOB_LEN, region as model_region};
 
 /// What the inference task receives, in arrival order.
 enum Event {
@@ -263,20 +264,13 @@ async fn main(spawner: Spawner) {
     let model_bytes = load_model_into_ram(MODEL_RAM.take());
     let app = APP.init_with(|| App::new(PROFILE, model_bytes));
     match app.model() {
-        Ok(m) => {
-            let c = m.config();
-            info!(
-                "model {:#010x} '{}' {} hidden {} at {} mHz, blob {} bytes CRC {:#010x} (built-in default {} bytes)",
-                c.model_id,
-                c.name_str(),
-                c.variant.name(),
-                c.hidden[0],
-                c.sample_rate_mhz,
-                m.blob().len,
-                m.blob().crc,
-                MODEL_BLOB.0.len()
-            );
-        }
+        Ok(m) => info!(
+            "{}",
+            ModelLine {
+                model: m,
+                default_blob_len: DEFAULT_BLOB_LEN
+            }
+        ),
         Err(e) => error!("model fault {}: no flags, a fault frame every second", e),
     }
 

@@ -1,6 +1,7 @@
 //! Anti-alias filter and decimation by [`RATIO`]: a 64-tap linear-phase FIR low-pass (Kaiser
-//! window, β = 5, cut-off 0.45 × the output rate), evaluated in polyphase form so that each
-//! channel keeps only [`PHASES`] accumulators instead of a 64-sample history.
+//! window, β = 5, cut-off 0.45 × the output rate; the taps are designed at compile time by
+//! [`design_lowpass_q15`]), evaluated in polyphase form so that each channel keeps only
+//! [`PHASES`] accumulators instead of a 64-sample history.
 //!
 //! Response, relative to the output (model) rate f_out, computed by the tests in this module:
 //! gain 0 dB at DC exactly (taps sum to 2^15), −0.6 dB at 0.18 f_out (3 Hz at 16.7 Hz),
@@ -9,6 +10,8 @@
 //! 0…0.3 f_out by at least 22 dB. Group delay (64 − 1) / 2 input samples = 1.97 output periods
 //! (118 ms at 16.7 Hz, 49 ms at 40 Hz): a deliberate trade of alias rejection for latency in a
 //! slip detector. Output unit: 1/16 ADC count (the oversampling buys the 4 extra bits).
+
+use slipguard_core::const_math;
 
 /// Input samples per output sample (ADC scan rate / model rate).
 pub const RATIO: usize = 16;
@@ -21,14 +24,50 @@ pub const TAP_BITS: u32 = 15;
 /// Fractional bits of the output relative to the input (output = counts · 2^OUT_FRAC_BITS).
 pub const OUT_FRAC_BITS: u32 = 4;
 
-/// The taps, Q0.15, symmetric, summing to exactly 32768 (unity DC gain). Generated with numpy:
-/// `h = sinc(2·0.45/16·(n − 31.5))·kaiser(64, 5)`, normalised, rounded, centre taps adjusted.
-pub const FIR: [i32; TAPS] = [
-    -8, -14, -22, -32, -43, -55, -68, -79, -88, -93, -91, -82, -62, -31, 14, 73, 148, 239, 344,
-    464, 596, 737, 885, 1035, 1183, 1326, 1459, 1577, 1676, 1754, 1807, 1835, 1835, 1807, 1754,
-    1676, 1577, 1459, 1326, 1183, 1035, 885, 737, 596, 464, 344, 239, 148, 73, 14, -31, -62, -82,
-    -91, -93, -88, -79, -68, -55, -43, -32, -22, -14, -8,
-];
+/// Shape parameter β of the Kaiser window the taps are designed with.
+pub const KAISER_BETA: f64 = 5.0;
+/// Cut-off of the windowed sinc (its −6 dB point), as the fraction
+/// `CUTOFF_NUM / CUTOFF_DEN` = 0.45 of the output rate f_out.
+pub const CUTOFF_NUM: u32 = 9;
+/// See [`CUTOFF_NUM`].
+pub const CUTOFF_DEN: u32 = 20;
+
+/// The taps, Q0.15, symmetric, summing to exactly 32768 (unity DC gain), computed at compile
+/// time by [`design_lowpass_q15`] from [`TAPS`], [`RATIO`], [`KAISER_BETA`] and the cut-off.
+pub const FIR: [i32; TAPS] = design_lowpass_q15();
+
+/// Windowed-sinc low-pass: h[n] = sinc(2·f_c·(n − (TAPS − 1)/2)) · kaiser(n, β) with
+/// f_c = (CUTOFF_NUM / CUTOFF_DEN) / RATIO cycles per input sample, normalised to unit sum,
+/// rounded to Q0.15; the rounding residue (if any) goes to the two centre taps, half each, so the
+/// taps still sum to exactly 2^15 and stay symmetric.
+pub const fn design_lowpass_q15() -> [i32; TAPS] {
+    // The sinc's argument, 2·f_c·(n − (TAPS − 1)/2) = CUTOFF_NUM·(2n − (TAPS − 1)) /
+    // (CUTOFF_DEN·RATIO): a ratio of integers, so the angle is reduced exactly.
+    let den = CUTOFF_DEN * RATIO as u32;
+    let mut h = [0f64; TAPS];
+    let mut sum = 0.0;
+    let mut n = 0;
+    while n < TAPS {
+        let m = CUTOFF_NUM as i64 * (2 * n as i64 - (TAPS as i64 - 1));
+        h[n] = const_math::sinc_ratio(m, den) * const_math::kaiser(n, TAPS, KAISER_BETA);
+        sum += h[n];
+        n += 1;
+    }
+    let one = (1i32 << TAP_BITS) as f64;
+    let mut q = [0i32; TAPS];
+    let mut total = 0i32;
+    let mut n = 0;
+    while n < TAPS {
+        q[n] = const_math::round(h[n] / sum * one) as i32;
+        total += q[n];
+        n += 1;
+    }
+    // A symmetric even-length filter sums pairs, so the residue is even: half on each centre tap.
+    let residue = (1i32 << TAP_BITS) - total;
+    q[TAPS / 2 - 1] += residue / 2;
+    q[TAPS / 2] += residue - residue / 2;
+    q
+}
 
 /// One channel's polyphase decimator state (36 bytes).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -97,6 +136,57 @@ mod tests {
             im -= h as f64 * (w * k as f64).sin();
         }
         20.0 * ((re * re + im * im).sqrt() / 32768.0).log10()
+    }
+
+    /// The same design computed independently: `f64::sin` for the sinc, the Kaiser window's
+    /// I0 by numerical integration of (1/π)∫₀^π e^(z·cos θ) dθ.
+    fn reference_taps() -> (Vec<f64>, Vec<i32>) {
+        use std::f64::consts::PI;
+        let i0 = |z: f64| {
+            let steps = 4000;
+            let mut acc = 0.0;
+            for j in 0..=steps {
+                let w = if j == 0 || j == steps { 0.5 } else { 1.0 };
+                acc += w * (z * (PI * j as f64 / steps as f64).cos()).exp();
+            }
+            acc / steps as f64
+        };
+        let fc = CUTOFF_NUM as f64 / CUTOFF_DEN as f64 / RATIO as f64;
+        let mid = (TAPS - 1) as f64 / 2.0;
+        let h: Vec<f64> = (0..TAPS)
+            .map(|n| {
+                let x = 2.0 * fc * (n as f64 - mid);
+                let sinc = if x == 0.0 {
+                    1.0
+                } else {
+                    (PI * x).sin() / (PI * x)
+                };
+                let r = (n as f64 - mid) / mid;
+                sinc * i0(KAISER_BETA * (1.0 - r * r).sqrt()) / i0(KAISER_BETA)
+            })
+            .collect();
+        let sum: f64 = h.iter().sum();
+        let scaled: Vec<f64> = h.iter().map(|v| v / sum * 32768.0).collect();
+        let rounded = scaled.iter().map(|v| v.round() as i32).collect();
+        (scaled, rounded)
+    }
+
+    #[test]
+    fn taps_match_an_independent_design() {
+        let (scaled, rounded) = reference_taps();
+        // No tap sits near a rounding boundary, so the two computations must round alike.
+        let margin = scaled
+            .iter()
+            .map(|v| ((v - v.floor()) - 0.5).abs())
+            .fold(f64::MAX, f64::min);
+        println!("decimator taps: closest to a rounding boundary by {margin:.3} LSB");
+        assert!(margin > 0.01, "{margin}");
+        assert_eq!(
+            rounded.iter().sum::<i32>(),
+            1 << TAP_BITS,
+            "no residue expected"
+        );
+        assert_eq!(FIR.to_vec(), rounded);
     }
 
     #[test]

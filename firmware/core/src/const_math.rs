@@ -1,5 +1,5 @@
-//! `const fn` elementary functions in f64, used to generate lookup tables (twiddles, sigmoid,
-//! tanh) at compile time instead of pasting them.
+//! `const fn` elementary functions in f64, used to generate tables (twiddles, sigmoid, tanh,
+//! the decimator's windowed-sinc taps) at compile time instead of pasting them.
 //!
 //! They only use IEEE-754 `+ - * /`, which are correctly rounded on every target, so a table
 //! built at run time on the Cortex-M4 (soft-float f64) is bit-identical to one built on the host.
@@ -121,6 +121,50 @@ const fn cos_sin_small(t: f64) -> (f64, f64) {
     (c, s)
 }
 
+/// sinc(m/d) = sin(π·m/d) / (π·m/d), the normalised sinc at a rational argument (the angle is
+/// reduced exactly, in integers, by [`cos_sin_turn`]); sinc(0) = 1.
+pub const fn sinc_ratio(m: i64, d: u32) -> f64 {
+    if m == 0 {
+        return 1.0;
+    }
+    // sinc is even; sin(π·|m|/d) is the sine of |m| / (2d) turns.
+    let a = m.unsigned_abs();
+    let (_, s) = cos_sin_turn((a % (2 * d as u64)) as u32, 2 * d);
+    s / (PI * a as f64 / d as f64)
+}
+
+/// I0(z), the modified Bessel function of the first kind of order 0, given z²/4: the series
+/// Σ_k (z²/4)^k / (k!)², summed until a term no longer changes the sum. Taking z²/4 lets the
+/// Kaiser window avoid a square root.
+pub const fn bessel_i0_from_quarter_square(q: f64) -> f64 {
+    let mut sum = 1.0;
+    let mut term = 1.0;
+    let mut k = 1;
+    // For q <= 100 (β up to 20) the terms fall below 1e-17 of the sum before k = 100.
+    while k < 100 {
+        term = term * q / (k as f64 * k as f64);
+        sum += term;
+        if term < sum * 1e-17 {
+            break;
+        }
+        k += 1;
+    }
+    sum
+}
+
+/// The Kaiser window of length `len` and shape β at sample `n` (0..len):
+/// I0(β·√(1 − r²)) / I0(β) with r = (2n − (len − 1)) / (len − 1), symmetric to the last bit
+/// (r is computed from an integer numerator, so w[n] and w[len − 1 − n] are the same number).
+pub const fn kaiser(n: usize, len: usize, beta: f64) -> f64 {
+    if len < 2 {
+        return 1.0;
+    }
+    let r = (2 * n as i64 - (len as i64 - 1)) as f64 / (len - 1) as f64;
+    let quarter_beta_sq = beta * beta / 4.0;
+    bessel_i0_from_quarter_square(quarter_beta_sq * (1.0 - r * r))
+        / bessel_i0_from_quarter_square(quarter_beta_sq)
+}
+
 /// Round half away from zero to the nearest integer, as `f64::round` does, in a `const fn`.
 pub const fn round(x: f64) -> f64 {
     let t = if x >= 0.0 { x + 0.5 } else { x - 0.5 };
@@ -155,6 +199,35 @@ mod tests {
                     "{m}/{n}"
                 );
             }
+        }
+        for m in -700i64..=700 {
+            let x = m as f64 / 320.0;
+            let want = if m == 0 {
+                1.0
+            } else {
+                (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x)
+            };
+            assert!((sinc_ratio(m, 320) - want).abs() < 1e-14, "sinc {m}/320");
+        }
+        // I0 against its integral form (1/π)∫₀^π e^(z·cos θ) dθ, by the trapezoidal rule,
+        // which converges geometrically for a periodic integrand.
+        for i in 0..=40 {
+            let z = i as f64 * 0.5;
+            let steps = 4000;
+            let mut acc = 0.0;
+            for j in 0..=steps {
+                let w = if j == 0 || j == steps { 0.5 } else { 1.0 };
+                acc += w * (z * (std::f64::consts::PI * j as f64 / steps as f64).cos()).exp();
+            }
+            let want = acc / steps as f64;
+            let got = bessel_i0_from_quarter_square(z * z / 4.0);
+            assert!(
+                (got - want).abs() <= 1e-13 * want,
+                "I0({z}) {got} vs {want}"
+            );
+        }
+        for n in 0..64 {
+            assert_eq!(kaiser(n, 64, 5.0), kaiser(63 - n, 64, 5.0));
         }
         assert_eq!(round(2.5), 3.0);
         assert_eq!(round(-2.5), -3.0);

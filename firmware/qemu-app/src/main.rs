@@ -10,7 +10,7 @@
 //! firmware's. `scripts/qemu-replay.sh` compares the file with the host replay byte for byte.
 //!
 //! Stdout (semihosting) gets a text log and the instruction counts per frame; exit status 0 when
-//! the run completed, 101 on a panic.
+//! the run completed, 101 on a panic (`slipguard_support::semihosting`).
 #![no_std]
 #![no_main]
 
@@ -31,13 +31,15 @@ use slipguard_app::replay::{self, CHEEZ_TRIAL, EmulatedSensor, cheez_script};
 use slipguard_app::schedule::Deadline;
 use slipguard_core::model_ram::ModelRam;
 use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
+use slipguard_support::boot::ModelLine;
+use slipguard_support::semihosting::exit;
 use static_cell::{ConstStaticCell, StaticCell};
 
 /// The sensor profile of this build.
 const PROFILE: Profile = Profile::HAND;
 
-// The default model blob in the `.model` section and `model_region()`.
-include!("../../model-region.rs");
+// The MODEL region (default blob in the `.model` section, replaceable at load time).
+use slipguard_support::model::{DEFAULT_BLOB_LEN, region as model_region};
 
 /// What the inference task receives, in arrival order.
 enum Event {
@@ -150,19 +152,13 @@ async fn main(spawner: Spawner) {
     };
     let app = APP.init_with(|| App::new(PROFILE, model_bytes));
     match app.model() {
-        Ok(m) => {
-            let c = m.config();
-            hprintln!(
-                "slipguard-qemu-app: model {:#010x} '{}' variant {} hidden {} at {} mHz, blob {} bytes (default blob in image: {} bytes)",
-                c.model_id,
-                c.name_str(),
-                c.variant.name(),
-                c.hidden[0],
-                c.sample_rate_mhz,
-                m.blob().len,
-                MODEL_BLOB.0.len()
-            );
-        }
+        Ok(m) => hprintln!(
+            "slipguard-qemu-app: {}",
+            ModelLine {
+                model: m,
+                default_blob_len: DEFAULT_BLOB_LEN
+            }
+        ),
         Err(e) => hprintln!(
             "slipguard-qemu-app: MODEL FAULT {:?}: no flags, fault frames only",
             e
@@ -232,22 +228,4 @@ async fn main(spawner: Spawner) {
         );
     }
     exit(0)
-}
-
-/// Ends the QEMU run with `code` (semihosting SYS_EXIT_EXTENDED).
-fn exit(code: i32) -> ! {
-    const SYS_EXIT_EXTENDED: usize = 0x20;
-    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x2_0026;
-    let block: [usize; 2] = [ADP_STOPPED_APPLICATION_EXIT, code as usize];
-    // SAFETY: a semihosting call with a valid two-word parameter block; QEMU exits here.
-    unsafe { cortex_m_semihosting::syscall(SYS_EXIT_EXTENDED, &block) };
-    loop {
-        cortex_m::asm::bkpt();
-    }
-}
-
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    hprintln!("PANIC: {}", info);
-    exit(101)
 }

@@ -6,7 +6,8 @@
 //!   `scripts/qemu-bench.sh` joins it with the plugin's cycles of that span.
 //! - [`check_equal`] compares a result with its expected value, prints `ok`/`MISMATCH` and records
 //!   mismatches; [`finish`] exits QEMU with 0 if there were none and 1 otherwise.
-//! - The `#[panic_handler]` prints the panic and exits with 101 (like a failing Rust test).
+//! - The panic handler (`slipguard_support::semihosting`) prints the panic and exits with 101
+//!   (like a failing Rust test).
 //!
 //! Exit codes go to the host through semihosting (`-semihosting-config enable=on,target=native`)
 //! and become `qemu-system-arm`'s own exit status.
@@ -16,18 +17,17 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m_semihosting::hprintln;
 
 use crate::insns;
+use slipguard_support::semihosting::exit;
 
 static CHECKS: AtomicU32 = AtomicU32::new(0);
 /// Next cycle-plugin span (0 is the calibration's).
 static NEXT_SPAN: AtomicU32 = AtomicU32::new(insns::CALIBRATION_SPAN + 1);
 static MISMATCHES: AtomicU32 = AtomicU32::new(0);
 
-/// Exit status after a panic.
-const PANIC_EXIT: i32 = 101;
-
 /// Measures `iterations` calls of `f` and prints `insns/iter`. Returns the instructions per
-/// iteration (rounded down) and the cycle plugin's span id of the measurement. Keep `f`'s inputs and outputs behind `core::hint::black_box` so
-/// the compiler cannot hoist or drop the work.
+/// iteration (rounded down) and the cycle plugin's span id of the measurement. Keep `f`'s
+/// inputs and outputs behind `core::hint::black_box` so the compiler cannot hoist or drop the
+/// work.
 pub fn bench<F: FnMut()>(name: &str, iterations: u32, f: F) -> (u64, u32) {
     let span = NEXT_SPAN.fetch_add(1, Ordering::Relaxed);
     insns::span_marker(span, false);
@@ -79,24 +79,4 @@ pub fn finish() -> ! {
         hprintln!("result: FAILED ({} of {} checks mismatched)", bad, checks);
         exit(1)
     }
-}
-
-/// Ends the QEMU run with `code` as its exit status (semihosting SYS_EXIT_EXTENDED, which
-/// carries any code; plain SYS_EXIT only tells success from failure).
-pub fn exit(code: i32) -> ! {
-    const SYS_EXIT_EXTENDED: usize = 0x20;
-    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x2_0026;
-    let block: [usize; 2] = [ADP_STOPPED_APPLICATION_EXIT, code as usize];
-    // SAFETY: a semihosting call with a valid two-word parameter block; QEMU exits here.
-    unsafe { cortex_m_semihosting::syscall(SYS_EXIT_EXTENDED, &block) };
-    // Only reached when semihosting is not enabled (e.g. on hardware): stop here.
-    loop {
-        cortex_m::asm::bkpt();
-    }
-}
-
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    hprintln!("PANIC: {}", info);
-    exit(PANIC_EXIT)
 }
