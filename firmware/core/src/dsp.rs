@@ -1343,6 +1343,63 @@ mod tests {
         }
     }
     #[test]
+    fn blocked_layout_sums_equal_wide_row_major_sums() {
+        // Every x part of 0..=3 chunks and h part of 0..=8 chunks, 8 rows, weights over the
+        // whole ±127 range (and -128 in a rows), activations over the whole i16 range: the
+        // blocked reference against i64 sums over the row-major weights.
+        let mut seed = 0x1357_9bdfu32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for xc in 0..=3usize {
+            for hc in 0..=8usize {
+                let (hh, stride, rows) = (4 * xc, 4 * (xc + hc), 8);
+                let w: Vec<i8> = (0..rows * stride)
+                    .map(|i| {
+                        let r = next();
+                        if (i / stride) % 2 == 0 && r % 11 == 0 {
+                            -128
+                        } else {
+                            ((r % 255) as i32 - 127) as i8
+                        }
+                    })
+                    .collect();
+                let v: Vec<i16> = (0..stride).map(|_| next() as i16).collect();
+                let words = |v: &[i16]| -> Vec<u32> {
+                    v.chunks(2)
+                        .map(|p| p[0] as u16 as u32 | (p[1] as u16 as u32) << 16)
+                        .collect()
+                };
+                let (x, h) = (words(&v[..hh]), words(&v[hh..]));
+                let mut packed = vec![0i8; w.len()];
+                assert_eq!(pack_lstm_blocks(&w, stride, &mut packed), stride > 0);
+                let mut got = vec![[0i32; 2]; rows];
+                lstm_block_sums_portable(&packed, stride, hh, &x, &h, &mut got);
+                let mut buf = vec![core::mem::MaybeUninit::uninit(); rows];
+                let dispatched = lstm_block_sums(&packed, stride, hh, &x, &h, &mut buf).to_vec();
+                for r in 0..rows {
+                    let row = &w[r * stride..][..stride];
+                    let dot = |a: &[i8], b: &[i16]| -> i64 {
+                        a.iter().zip(b).map(|(&a, &b)| a as i64 * b as i64).sum()
+                    };
+                    let want = [dot(&row[..hh], &v[..hh]), dot(&row[hh..], &v[hh..])];
+                    assert_eq!(got[r].map(i64::from), want, "x {xc} h {hc} row {r}");
+                    assert_eq!(dispatched[r], got[r], "x {xc} h {hc} row {r}");
+                }
+            }
+        }
+        // Not representable: b = -128 over a negative a; shapes the layout does not take.
+        let mut w = [1i8; 32];
+        (w[0], w[8]) = (-1, -128);
+        assert!(!pack_lstm_blocks(&w, 8, &mut [0; 32]));
+        assert!(!pack_lstm_blocks(&[0; 24], 8, &mut [0; 24]));
+        assert!(!pack_lstm_blocks(&[0; 24], 6, &mut [0; 24]));
+    }
+
+    #[test]
     fn permute_uninit_equals_permute() {
         let v: Vec<i16> = (0..140).map(|i| (i as i16).wrapping_mul(-4321)).collect();
         for n in 0..=140 {
