@@ -16,6 +16,12 @@ use crate::{MAX_HIDDEN, MAX_INPUT};
 
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"SGMB";
+/// First four bytes of a *RAM image* of a blob ([`crate::model_ram::ModelRam::load`]): the
+/// blob with magic `SGMI`, its LSTM weight tensors in the blocked layout of
+/// [`crate::dsp::pack_lstm_blocks`] (same length), its own CRC-32 still in place (the model's
+/// fingerprint, checked on the source before the copy), followed by 4 bytes: the CRC-32 of the
+/// image's first `total length` bytes. Built in RAM, never written to flash or sent.
+pub const IMAGE_MAGIC: [u8; 4] = *b"SGMI";
 /// The format version this parser reads.
 pub const VERSION: u16 = 1;
 /// Size of the fixed header.
@@ -283,8 +289,11 @@ pub struct LstmTensors<'a> {
     pub row_len: usize,
     /// Cell state fractional bits C (c is Q(15-C).C).
     pub cell_frac_bits: u32,
-    /// 4H rows × `row_len` int8 weights, gate order i, f, g, o (as PyTorch).
+    /// 4H rows × `row_len` int8 weights, gate order i, f, g, o (as PyTorch): row-major as in
+    /// the blob, or in the blocked layout of [`crate::dsp::pack_lstm_blocks`] if `blocked`.
     pub weights: &'a [i8],
+    /// `weights` are in the blocked layout (a RAM image, [`IMAGE_MAGIC`]).
+    pub blocked: bool,
     /// 4H rows of requantisation parameters, same order.
     pub rows: &'a [LstmRowParams],
 }
@@ -461,7 +470,8 @@ impl<'a> ModelBlob<'a> {
                 present,
             });
         }
-        if bytes[0..4] != MAGIC {
+        let image = bytes[0..4] == IMAGE_MAGIC;
+        if !image && bytes[0..4] != MAGIC {
             return Err(BlobError::BadMagic);
         }
         let version = u16_at(bytes, 4);
@@ -479,12 +489,29 @@ impl<'a> ModelBlob<'a> {
                 present,
             });
         }
-        let bytes = &bytes[..total];
         let body = total - CRC_LEN;
+        if image {
+            // A RAM image: its own CRC after the blob's bytes covers the re-laid weights and
+            // the blob's CRC (checked on the source when the image was made).
+            let stored = u32_at(bytes, total);
+            if bytes.len() < total + CRC_LEN {
+                return Err(BlobError::Truncated {
+                    needed: (total + CRC_LEN) as u32,
+                    present,
+                });
+            }
+            let computed = CRC32.checksum(&bytes[..total]);
+            if stored != computed {
+                return Err(BlobError::BadCrc { stored, computed });
+            }
+        }
+        let bytes = &bytes[..total];
         let stored = u32_at(bytes, body);
-        let computed = CRC32.checksum(&bytes[..body]);
-        if stored != computed {
-            return Err(BlobError::BadCrc { stored, computed });
+        if !image {
+            let computed = CRC32.checksum(&bytes[..body]);
+            if stored != computed {
+                return Err(BlobError::BadCrc { stored, computed });
+            }
         }
         if bytes.as_ptr().align_offset(4) != 0 {
             return Err(BlobError::Misaligned);
@@ -591,6 +618,7 @@ impl<'a> ModelBlob<'a> {
             row_len: 0,
             cell_frac_bits: 0,
             weights: &[],
+            blocked: false,
             rows: &[],
         };
         let mut lstm = [empty; 2];
@@ -615,6 +643,7 @@ impl<'a> ModelBlob<'a> {
                 row_len,
                 cell_frac_bits: config.cell_frac_bits[k] as u32,
                 weights,
+                blocked: image,
                 rows,
             };
             dense_len += pad4(hidden);

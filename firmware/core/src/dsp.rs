@@ -13,6 +13,10 @@
 //!   lane order*, in one assembly pass on `thumbv7em` with the DSP extension, into
 //!   uninitialised memory; elsewhere (the host, and any argument the kernel cannot take)
 //!   [`lstm_gate_sums_portable`], built on [`dot_i8_q15_permuted`], which defines the result.
+//! - [`lstm_block_sums`]: the same two dot products from weights in the *blocked layout* of
+//!   [`pack_lstm_blocks`] (the model's RAM image, [`crate::model_ram`]): register-blocked, 4 rows
+//!   per pass reusing each activation word (x and h in natural order) held in registers, about
+//!   1.25 cycles per MAC; reference [`lstm_block_sums_portable`].
 //! - [`lstm_gate_rows`]: the gate pass (requantisation, σ/tanh by interval table) in assembly;
 //!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
 //!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
@@ -38,7 +42,21 @@
 
 use crate::activation::IntervalTable;
 use crate::blob::LstmRowParams;
-use crate::lstm::{CellShifts, LstmState};
+
+/// The cell format's constants for [`lstm_cell_update`] (from `lstm::CellShifts`):
+/// c' = sat16(((f·c + 2^14) >> 15) + ((i·g + ig_half) >> ig_shift)), then
+/// q = sat16((c'·q_mul + q_add) >> 3) in Q3.12 for tanh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CellParams {
+    /// i·g (Q0.30) → Q(15-C).C: shift right by 30 − C.
+    pub ig_shift: u32,
+    /// 2^(ig_shift − 1).
+    pub ig_half: i32,
+    /// Cell → Q3.12 multiplier (before a shift right by 3).
+    pub q_mul: i32,
+    /// Cell → Q3.12 rounding addend (before a shift right by 3).
+    pub q_add: i32,
+}
 
 /// Σ w[i]·v[i] over `min(w.len(), v.len())` elements: int8 weights × int16 activations,
 /// accumulated in `i32`.
@@ -250,6 +268,155 @@ pub fn lstm_gate_sums<'o>(
     unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i32; 2]>(), out.len()) }
 }
 
+/// Rows per block of the blocked LSTM weight layout ([`pack_lstm_blocks`]).
+pub const BLOCK_ROWS: usize = 4;
+/// Chunks (2 value pairs = 4 values of x or h) of the x part that [`lstm_block_sums`] runs in
+/// assembly: all of MAX_INPUT.
+pub const MAX_BLOCK_X_CHUNKS: usize = crate::MAX_INPUT.div_ceil(4);
+/// Chunks of the h part that [`lstm_block_sums`] runs in assembly: all of MAX_HIDDEN.
+pub const MAX_BLOCK_H_CHUNKS: usize = crate::MAX_HIDDEN.div_ceil(4);
+
+/// Re-lays row-major LSTM gate weights (`w`: rows of `stride` bytes, as in the blob) into the
+/// *blocked layout* of [`lstm_block_sums`], into `out` (the same length). Returns false,
+/// leaving `out` unspecified, if the weights cannot be represented (a pair's `b` weight is
+/// -128 with a negative `a` weight; the exporter never writes -128) or the shape does not suit
+/// (rows not a multiple of 4, `stride` not a multiple of 4, lengths differ).
+///
+/// The layout: rows in blocks of 4; rows 4m and 4m+1 form pair 0 (a, b), rows 4m+2 and 4m+3
+/// pair 1. A row is `stride / 2` value pairs j (values 2j, 2j+1). For pair (a, b) and value
+/// pair j one word holds the halfwords `256·b[2j] + a[2j]` and `256·b[2j+1] + a[2j+1]` (each fits
+/// an i16 unless b = -128 and a < 0): its low bytes are a's weights, so SXTB16 extracts them,
+/// while SMLALD with the activation word (v_2j, v_2j+1) adds 256·(b·v) + a·v in 64 bits. Block m
+/// is `4·stride` bytes at `m·4·stride`: chunk c (value pairs 2c, 2c+1) is four words, pair 0 at
+/// j = 2c and 2c+1, then pair 1 at j = 2c and 2c+1. The same size as the row-major rows.
+pub fn pack_lstm_blocks(w: &[i8], stride: usize, out: &mut [i8]) -> bool {
+    if stride == 0
+        || !stride.is_multiple_of(4)
+        || w.len() != out.len()
+        || !w.len().is_multiple_of(BLOCK_ROWS * stride)
+    {
+        return false;
+    }
+    for (blk, dst) in w
+        .chunks_exact(BLOCK_ROWS * stride)
+        .zip(out.chunks_exact_mut(BLOCK_ROWS * stride))
+    {
+        for (c, words) in dst.chunks_exact_mut(16).enumerate() {
+            for (k, word) in words.chunks_exact_mut(4).enumerate() {
+                let (pair, j) = (k / 2, 2 * c + k % 2);
+                let a = &blk[2 * pair * stride..][..stride];
+                let b = &blk[(2 * pair + 1) * stride..][..stride];
+                for (half, i) in word.chunks_exact_mut(2).zip([2 * j, 2 * j + 1]) {
+                    let v = 256 * b[i] as i32 + a[i] as i32;
+                    let Ok(v) = i16::try_from(v) else {
+                        return false;
+                    };
+                    let [lo, hi] = v.to_le_bytes();
+                    half[0] = lo as i8;
+                    half[1] = hi as i8;
+                }
+            }
+        }
+    }
+    true
+}
+
+/// The weight of row q (0..4) of a block at value pair j, half `i` (0 or 1), from the blocked
+/// layout: the inverse of [`pack_lstm_blocks`]. 0 where `blk` has no such bytes.
+#[inline]
+fn block_weight(blk: &[i8], q: usize, j: usize, i: usize) -> i32 {
+    let at = 16 * (j / 2) + 8 * (q / 2) + 4 * (j % 2) + 2 * i;
+    let (Some(&lo), Some(&hi)) = (blk.get(at), blk.get(at + 1)) else {
+        return 0;
+    };
+    let a = lo as i32;
+    let v = i16::from_le_bytes([lo as u8, hi as u8]) as i32;
+    if q.is_multiple_of(2) { a } else { (v - a) >> 8 }
+}
+
+/// The reference of [`lstm_block_sums`]: `out[r] = [Σ_k W[r][k]·x[k], Σ_k W[r][hh_offset + k]·h[k]]`
+/// with W the row-major weights that [`pack_lstm_blocks`] packed into `wb`, and x, h in natural
+/// order as words of value pairs (`v_2j | v_2j+1 << 16`): the same numbers as
+/// [`lstm_gate_sums_portable`] on the row-major weights. Missing weights or activations count
+/// as 0.
+pub fn lstm_block_sums_portable(
+    wb: &[i8],
+    stride: usize,
+    hh_offset: usize,
+    x: &[u32],
+    h: &[u32],
+    out: &mut [[i32; 2]],
+) {
+    for (r, o) in out.iter_mut().enumerate() {
+        *o = block_row(wb, stride, hh_offset, x, h, r);
+    }
+}
+
+/// Row `r` of [`lstm_block_sums_portable`].
+fn block_row(
+    wb: &[i8],
+    stride: usize,
+    hh_offset: usize,
+    x: &[u32],
+    h: &[u32],
+    r: usize,
+) -> [i32; 2] {
+    let blk = (r / BLOCK_ROWS)
+        .checked_mul(BLOCK_ROWS * stride)
+        .and_then(|s| wb.get(s..))
+        .unwrap_or(&[]);
+    let q = r % BLOCK_ROWS;
+    let xp = hh_offset / 2;
+    let mut sums = [0i32; 2];
+    for j in 0..stride / 2 {
+        let (part, act) = if j < xp {
+            (0, x.get(j))
+        } else {
+            (1, h.get(j - xp))
+        };
+        let Some(&act) = act else { continue };
+        let (v0, v1) = (act as i16 as i32, (act >> 16) as i16 as i32);
+        sums[part] += block_weight(blk, q, j, 0) * v0 + block_weight(blk, q, j, 1) * v1;
+    }
+    sums
+}
+
+/// Both dot products of every LSTM gate row, from weights in the blocked layout of
+/// [`pack_lstm_blocks`] (`wb`, rows of `stride` bytes whose first `hh_offset` are the x part)
+/// and activations in natural order as words of value pairs, into uninitialised memory: the
+/// numbers of [`lstm_block_sums_portable`], returned as the initialised `out`.
+///
+/// On a Cortex-M with the DSP extension, for whole blocks of 4 rows inside `wb` (4-byte
+/// aligned), `stride` and `hh_offset` multiples of 4, `x` holding `hh_offset / 2` words and `h`
+/// `(stride - hh_offset) / 2`, at most [`MAX_BLOCK_X_CHUNKS`] and [`MAX_BLOCK_H_CHUNKS`]
+/// chunks: the register-blocked assembly kernel. Per chunk of 4 rows × 4 values it loads 2
+/// activation words and 4 weight words (LDM) and runs 4 × (SMLALD, SXTB16, SMLAD): 16 MACs in
+/// 14 instructions, about 20 cycles, each activation word used by 4 rows; a's sum is the
+/// SMLAD accumulator, b's is (SMLALD − SMLAD) / 256, exact in 64 bits. Otherwise the portable
+/// code.
+pub fn lstm_block_sums<'o>(
+    wb: &[i8],
+    stride: usize,
+    hh_offset: usize,
+    x: &[u32],
+    h: &[u32],
+    out: &'o mut [core::mem::MaybeUninit<[i32; 2]>],
+) -> &'o mut [[i32; 2]] {
+    #[cfg(slipguard_dsp)]
+    let done = arm::lstm_blocks(wb, stride, hh_offset, x, h, out);
+    #[cfg(not(slipguard_dsp))]
+    let done = false;
+    if !done {
+        for (r, o) in out.iter_mut().enumerate() {
+            o.write(block_row(wb, stride, hh_offset, x, h, r));
+        }
+    }
+    // SAFETY: every element of `out` has been written, by the kernel (see `arm::lstm_blocks`:
+    // it returns true only after writing all of them) or by the loop above; `MaybeUninit<T>`
+    // has the layout of `T`, and the returned borrow keeps `out` (exclusively) borrowed.
+    unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i32; 2]>(), out.len()) }
+}
+
 /// The gate pass of the LSTM in assembly. From the first row on, while a row's requantisation
 /// shift is in 33..=62: `acc[r][0] = f(z)` with z = `sat16(round((acc[r][0]·mx + acc[r][1]·mh)
 /// / 2^shift) + bias)` and f given by its interval `table` ([`crate::activation::lookup`]).
@@ -276,29 +443,34 @@ pub fn lstm_gate_rows(
 /// `gates[g·hn + j][0]` (gate order i, f, g, o, low 16 bits): the same bits as
 /// `lstm::cell_update_portable` (the cell → Q3.12 conversion in its `q_mul`/`q_add` form, tanh
 /// by its interval `table`). Returns false, changing nothing, where it does not run (other
-/// targets, `hn` > MAX_HIDDEN or fewer than 4·hn gates); true after updating every unit.
+/// targets, `hn` > MAX_HIDDEN, fewer than 4·hn gates, or `c` not directly after `h` in
+/// memory); true after updating every unit.
 #[inline]
 pub fn lstm_cell_update(
     gates: &[[i32; 2]],
     hn: usize,
-    state: &mut LstmState,
-    k: CellShifts,
+    h: &mut [i16; crate::MAX_HIDDEN],
+    c: &mut [i16; crate::MAX_HIDDEN],
+    k: CellParams,
     table: &IntervalTable,
 ) -> bool {
     #[cfg(slipguard_dsp)]
-    return arm::cell_update(gates, hn, state, k, table);
+    return arm::cell_update(gates, hn, h, c, k, table);
     #[cfg(not(slipguard_dsp))]
     {
-        let _ = (gates, hn, state, k, table);
+        let _ = (gates, hn, h, c, k, table);
         false
     }
 }
 
 #[cfg(slipguard_dsp)]
 mod arm {
-    use super::{ASM_BLOCKS, ASM_X_BLOCKS, CellShifts, IntervalTable, LstmRowParams, LstmState};
+    use super::{ASM_BLOCKS, ASM_X_BLOCKS, CellParams, IntervalTable, LstmRowParams};
     use crate::MAX_HIDDEN;
-    use crate::lstm::C_OFFSET;
+
+    /// Bytes from `h[j]` to `c[j]` where the assembly cell update runs: c must directly follow
+    /// h (as in `lstm::LstmState`, `repr(C)`).
+    const C_OFFSET: usize = 2 * MAX_HIDDEN;
     use core::mem::MaybeUninit;
 
     /// One 3-word block: 12 MACs in 14 instructions, 56 bytes (all 32-bit encodings).
@@ -559,7 +731,7 @@ mod arm {
 
     /// What the cell update reads, in the order of its LDM (r0-r5, r7-r10).
     #[repr(C)]
-    struct CellParams {
+    struct CellArgs {
         gi: *const [i32; 2],
         off: usize,
         go: *const [i32; 2],
@@ -577,18 +749,22 @@ mod arm {
     pub(super) fn cell_update(
         gates: &[[i32; 2]],
         hn: usize,
-        state: &mut LstmState,
-        k: CellShifts,
+        h: &mut [i16; MAX_HIDDEN],
+        c: &mut [i16; MAX_HIDDEN],
+        k: CellParams,
         table: &IntervalTable,
     ) -> bool {
-        if hn > MAX_HIDDEN || gates.len() < 4 * hn {
+        if hn > MAX_HIDDEN
+            || gates.len() < 4 * hn
+            || c.as_ptr() as usize != h.as_ptr() as usize + C_OFFSET
+        {
             return false;
         }
         if hn == 0 {
             return true;
         }
-        let h = state.h[..hn].as_mut_ptr_range();
-        let p = CellParams {
+        let h = h[..hn].as_mut_ptr_range();
+        let p = CellArgs {
             gi: gates.as_ptr(),
             off: 8 * hn,
             go: gates[3 * hn..].as_ptr(),
@@ -601,8 +777,8 @@ mod arm {
             q_add: k.q_add,
         };
         // SAFETY: for j < hn the loop reads gates[j], gates[hn + j], gates[2·hn + j] and
-        // gates[3·hn + j] (inside `gates`: 4·hn ≤ len), reads and writes state.h[j] and
-        // state.c[j] (c at C_OFFSET bytes after h in the repr(C) struct, hn ≤ MAX_HIDDEN), and
+        // gates[3·hn + j] (inside `gates`: 4·hn ≤ len), reads and writes h[j] and c[j] (c is
+        // C_OFFSET bytes after h, as checked; both exclusively borrowed, hn ≤ MAX_HIDDEN), and
         // reads the table at 256 + (q >> 7) with q a saturated i16: 0..=511. It saves and
         // restores r4-r11 and lr.
         unsafe {
@@ -622,7 +798,7 @@ mod arm {
                 "bne 1b",
                 "pop {{r4-r11, lr}}",
                 coff = const C_OFFSET,
-                inout("r0") &p as *const CellParams => _,
+                inout("r0") &p as *const CellArgs => _,
                 out("r1") _,
                 out("r2") _,
                 out("r3") _,
@@ -630,6 +806,210 @@ mod arm {
             );
         }
         true
+    }
+
+    /// One chunk of the blocked kernel: 4 rows × 4 values = 16 MACs in 14 instructions,
+    /// 56 bytes (all 32-bit encodings). Activation words r8, r9; pair 0's accumulators r2:r3
+    /// (SMLALD, 64 bits) and r4 (SMLAD of the SXTB16 low bytes), pair 1's r5:r6 and r7.
+    macro_rules! BLOCK_CHUNK {
+        () => {
+            "ldmia.w r1!, {{r8, r9}}
+             ldmia.w r0!, {{r10, r11, r12, lr}}
+             smlald r2, r3, r10, r8
+             sxtb16 r10, r10
+             smlad r4, r10, r8, r4
+             smlald r2, r3, r11, r9
+             sxtb16 r11, r11
+             smlad r4, r11, r9, r4
+             smlald r5, r6, r12, r8
+             sxtb16 r12, r12
+             smlad r7, r12, r8, r7
+             smlald r5, r6, lr, r9
+             sxtb16 lr, lr
+             smlad r7, lr, r9, r7"
+        };
+    }
+    /// b's sums of both pairs: (A − B) / 256 from the 64-bit A (exact: it fits 32 bits), into
+    /// r2 (pair 0) and r5 (pair 1); a's stay in r4 and r7.
+    macro_rules! BLOCK_EXTRACT {
+        () => {
+            "subs r2, r2, r4
+             sbc r3, r3, r4, asr #31
+             lsrs r2, r2, #8
+             orr r2, r2, r3, lsl #24
+             subs r5, r5, r7
+             sbc r6, r6, r7, asr #31
+             lsrs r5, r5, #8
+             orr r5, r5, r6, lsl #24"
+        };
+    }
+    /// Clears the six accumulators.
+    macro_rules! BLOCK_CLEAR {
+        () => {
+            "movs r2, #0
+             movs r3, #0
+             movs r4, #0
+             movs r5, #0
+             movs r6, #0
+             movs r7, #0"
+        };
+    }
+
+    /// What the blocked kernel reads (one pointer in r0; fields at fixed offsets).
+    #[repr(C)]
+    struct BlockParams {
+        /// +0: first block's first weight word.
+        w: *const i8,
+        /// +4, +8: x and h as words of value pairs.
+        x: *const u32,
+        h: *const u32,
+        /// +12, +16: first output word and one past the last.
+        out: *mut i32,
+        out_end: *mut i32,
+        /// +20, +24: chunks of the x part (≤ MAX_BLOCK_X_CHUNKS) and of the h part.
+        x_chunks: usize,
+        h_chunks: usize,
+    }
+
+    /// Runs the blocked kernel if the arguments suit it (see `lstm_block_sums`) and returns
+    /// true after writing every element of `out`; returns false, writing nothing, otherwise.
+    #[inline]
+    pub(super) fn lstm_blocks(
+        wb: &[i8],
+        stride: usize,
+        hh_offset: usize,
+        x: &[u32],
+        h: &[u32],
+        out: &mut [MaybeUninit<[i32; 2]>],
+    ) -> bool {
+        let rows = out.len();
+        if rows == 0 {
+            return true;
+        }
+        if !rows.is_multiple_of(super::BLOCK_ROWS)
+            || !stride.is_multiple_of(4)
+            || !hh_offset.is_multiple_of(4)
+            || hh_offset > stride
+            || x.len() != hh_offset / 2
+            || h.len() != (stride - hh_offset) / 2
+            || hh_offset / 4 > super::MAX_BLOCK_X_CHUNKS
+            || (stride - hh_offset) / 4 > super::MAX_BLOCK_H_CHUNKS
+            || rows.checked_mul(stride).is_none_or(|end| end > wb.len())
+            || !(wb.as_ptr() as usize).is_multiple_of(4)
+        {
+            return false;
+        }
+        let range = out.as_mut_ptr_range();
+        let p = BlockParams {
+            w: wb.as_ptr(),
+            x: x.as_ptr(),
+            h: h.as_ptr(),
+            out: range.start.cast::<i32>(),
+            out_end: range.end.cast::<i32>(),
+            x_chunks: hh_offset / 4,
+            h_chunks: (stride - hh_offset) / 4,
+        };
+        // SAFETY: the checks above guarantee that the kernel reads `wb[..rows·stride]` (inside
+        // `wb`, word-aligned: `wb` is and stride is a multiple of 4; each block of 4 rows is
+        // x_chunks + h_chunks chunks of 16 bytes = 4·stride bytes), `x[..2·x_chunks]` and
+        // `h[..2·h_chunks]` (aligned `[u32]`s, exactly those lengths) once per block, and
+        // writes the 2·rows words of `out` (exclusively borrowed, the layout of [[i32; 2]],
+        // rows a multiple of 4); the chunk counts ≤ their unrolled copies keep the computed
+        // jumps inside the kernel. It saves and restores r4-r11, lr and sp.
+        unsafe { lstm_block_kernel(&p) };
+        true
+    }
+
+    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_blocks`] checks.
+    #[inline(never)]
+    unsafe fn lstm_block_kernel(p: &BlockParams) {
+        // Registers in the chunks: r0 weight pointer (one stream, block after block), r1
+        // activation pointer, r2-r7 accumulators, r8-r9 activation words, r10-r12 and lr weight
+        // words. Stack: [sp] x, [sp+4] x entry, [sp+8] h, [sp+12] h entry, [sp+16] out,
+        // [sp+20] out_end. Each part is entered at (end of its unrolled chunks − chunks · 56).
+        // SAFETY: see the caller; every memory access is inside the buffers `p` describes.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "sub sp, sp, #24",
+                "ldr r1, [r0, #4]",
+                "str r1, [sp, #0]",
+                "ldr r1, [r0, #8]",
+                "str r1, [sp, #8]",
+                "ldr r1, [r0, #12]",
+                "str r1, [sp, #16]",
+                "ldr r1, [r0, #16]",
+                "str r1, [sp, #20]",
+                "movs r3, #56",
+                // x entry. Every ADR sits on a word boundary (as in `lstm_kernel`).
+                "ldr r1, [r0, #20]",
+                ".p2align 2",
+                "adr.w r2, 12f",
+                "mls r2, r1, r3, r2",
+                "orr r2, r2, #1",
+                "str r2, [sp, #4]",
+                // h entry.
+                "ldr r1, [r0, #24]",
+                ".p2align 2",
+                "adr.w r2, 22f",
+                "mls r2, r1, r3, r2",
+                "orr r2, r2, #1",
+                "str r2, [sp, #12]",
+                "ldr r0, [r0, #0]",
+                // Block loop: x part.
+                "1:",
+                BLOCK_CLEAR!(),
+                "ldr r1, [sp, #0]",
+                "ldr pc, [sp, #4]",
+                "11:",
+                ".rept {xchunks}",
+                BLOCK_CHUNK!(),
+                ".endr",
+                "12:",
+                ".if (12b - 11b) != 56 * {xchunks}",
+                ".error \"dsp blocked kernel: unrolled x chunk is not 56 bytes\"",
+                ".endif",
+                BLOCK_EXTRACT!(),
+                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0].
+                "ldr r1, [sp, #16]",
+                "str r4, [r1]",
+                "str r2, [r1, #8]",
+                "str r7, [r1, #16]",
+                "str r5, [r1, #24]",
+                // h part.
+                BLOCK_CLEAR!(),
+                "ldr r1, [sp, #8]",
+                "ldr pc, [sp, #12]",
+                "21:",
+                ".rept {hchunks}",
+                BLOCK_CHUNK!(),
+                ".endr",
+                "22:",
+                ".if (22b - 21b) != 56 * {hchunks}",
+                ".error \"dsp blocked kernel: unrolled h chunk is not 56 bytes\"",
+                ".endif",
+                BLOCK_EXTRACT!(),
+                "ldr r1, [sp, #16]",
+                "str r4, [r1, #4]",
+                "str r2, [r1, #12]",
+                "str r7, [r1, #20]",
+                "str r5, [r1, #28]",
+                "adds r1, r1, #32",
+                "str r1, [sp, #16]",
+                "ldr r12, [sp, #20]",
+                "cmp r1, r12",
+                "bne 1b",
+                "add sp, sp, #24",
+                "pop {{r4-r11, lr}}",
+                xchunks = const super::MAX_BLOCK_X_CHUNKS,
+                hchunks = const super::MAX_BLOCK_H_CHUNKS,
+                inout("r0") p as *const BlockParams => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
     }
 
     /// What the LSTM kernel reads (one pointer in r0; fields at fixed offsets).
@@ -962,6 +1342,63 @@ mod tests {
             assert_eq!(port.to_vec(), want);
         }
     }
+    #[test]
+    fn blocked_layout_sums_equal_wide_row_major_sums() {
+        // Every x part of 0..=3 chunks and h part of 0..=8 chunks, 8 rows, weights over the
+        // whole ±127 range (and -128 in a rows), activations over the whole i16 range: the
+        // blocked reference against i64 sums over the row-major weights.
+        let mut seed = 0x1357_9bdfu32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for xc in 0..=3usize {
+            for hc in 0..=8usize {
+                let (hh, stride, rows) = (4 * xc, 4 * (xc + hc), 8);
+                let w: Vec<i8> = (0..rows * stride)
+                    .map(|i| {
+                        let r = next();
+                        if (i / stride) % 2 == 0 && r % 11 == 0 {
+                            -128
+                        } else {
+                            ((r % 255) as i32 - 127) as i8
+                        }
+                    })
+                    .collect();
+                let v: Vec<i16> = (0..stride).map(|_| next() as i16).collect();
+                let words = |v: &[i16]| -> Vec<u32> {
+                    v.chunks(2)
+                        .map(|p| p[0] as u16 as u32 | (p[1] as u16 as u32) << 16)
+                        .collect()
+                };
+                let (x, h) = (words(&v[..hh]), words(&v[hh..]));
+                let mut packed = vec![0i8; w.len()];
+                assert_eq!(pack_lstm_blocks(&w, stride, &mut packed), stride > 0);
+                let mut got = vec![[0i32; 2]; rows];
+                lstm_block_sums_portable(&packed, stride, hh, &x, &h, &mut got);
+                let mut buf = vec![core::mem::MaybeUninit::uninit(); rows];
+                let dispatched = lstm_block_sums(&packed, stride, hh, &x, &h, &mut buf).to_vec();
+                for r in 0..rows {
+                    let row = &w[r * stride..][..stride];
+                    let dot = |a: &[i8], b: &[i16]| -> i64 {
+                        a.iter().zip(b).map(|(&a, &b)| a as i64 * b as i64).sum()
+                    };
+                    let want = [dot(&row[..hh], &v[..hh]), dot(&row[hh..], &v[hh..])];
+                    assert_eq!(got[r].map(i64::from), want, "x {xc} h {hc} row {r}");
+                    assert_eq!(dispatched[r], got[r], "x {xc} h {hc} row {r}");
+                }
+            }
+        }
+        // Not representable: b = -128 over a negative a; shapes the layout does not take.
+        let mut w = [1i8; 32];
+        (w[0], w[8]) = (-1, -128);
+        assert!(!pack_lstm_blocks(&w, 8, &mut [0; 32]));
+        assert!(!pack_lstm_blocks(&[0; 24], 8, &mut [0; 24]));
+        assert!(!pack_lstm_blocks(&[0; 24], 6, &mut [0; 24]));
+    }
+
     #[test]
     fn permute_uninit_equals_permute() {
         let v: Vec<i16> = (0..140).map(|i| (i as i16).wrapping_mul(-4321)).collect();

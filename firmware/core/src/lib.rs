@@ -31,6 +31,7 @@ pub mod features;
 pub mod fixed;
 pub mod lstm;
 pub mod model;
+pub mod model_ram;
 pub mod protocol;
 pub mod sample;
 

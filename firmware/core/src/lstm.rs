@@ -17,14 +17,18 @@
 
 use crate::activation::{self, sigmoid, tanh};
 use crate::blob::{LstmRowParams, LstmTensors};
-use crate::dsp::{lstm_cell_update, lstm_gate_rows, lstm_gate_sums, permute_q15_uninit};
+use crate::dsp::{
+    CellParams, lstm_block_sums, lstm_cell_update, lstm_gate_rows, lstm_gate_sums,
+    permute_q15_uninit,
+};
 use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
 use crate::{MAX_HIDDEN, MAX_INPUT};
 use core::mem::MaybeUninit;
 
 /// One LSTM's recurrent state for one channel. `repr(C)`: the assembly cell update
-/// ([`crate::dsp::lstm_cell_update`]) finds c at a fixed offset from h; aligned to 4 bytes so
-/// that the dense layer's kernel ([`crate::dsp::dot_i8_i16_fast`]) can load h by words.
+/// ([`crate::dsp::lstm_cell_update`]) needs c directly after h; aligned to 4
+/// bytes so that the kernels ([`crate::dsp::dot_i8_i16_fast`], [`crate::dsp::lstm_block_sums`])
+/// can load h by words.
 #[derive(Clone, Debug, PartialEq, Eq)]
 #[repr(C, align(4))]
 pub struct LstmState {
@@ -48,9 +52,7 @@ impl LstmState {
     }
 }
 
-/// Bytes from `h[j]` to `c[j]` in [`LstmState`].
-pub const C_OFFSET: usize = 2 * MAX_HIDDEN;
-const _: () = assert!(core::mem::offset_of!(LstmState, c) == C_OFFSET);
+const _: () = assert!(core::mem::offset_of!(LstmState, c) == 2 * MAX_HIDDEN);
 
 impl Default for LstmState {
     fn default() -> Self {
@@ -109,6 +111,16 @@ pub struct CellShifts {
 }
 
 impl CellShifts {
+    /// The constants the assembly cell update takes.
+    pub fn kernel(&self) -> CellParams {
+        CellParams {
+            ig_shift: self.ig_shift,
+            ig_half: self.ig_half,
+            q_mul: self.q_mul,
+            q_add: self.q_add,
+        }
+    }
+
     /// The shifts for cell format C = `cell_frac_bits`.
     pub fn new(cell_frac_bits: u32) -> Self {
         let cb = cell_frac_bits.clamp(1, 15);
@@ -152,19 +164,49 @@ fn cell_unit(k: CellShifts, [i, f, g, o]: [i16; 4], c: &mut i16, h: &mut i16) {
 pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     let hn = t.hidden.min(MAX_HIDDEN);
     let x = &x[..t.inputs.min(x.len())];
-    // x and h in the dot kernel's lane order, zero-padded to whole groups of 4 (the weights'
-    // padding meets zeros, so the sums equal the plain dot products over I and H terms).
-    // Written by the permutation, so not zeroed first.
-    let mut xbuf = [MaybeUninit::<u32>::uninit(); MAX_INPUT.div_ceil(4) * 2];
-    let xp = permute_q15_uninit(x, &mut xbuf);
-    let mut hbuf = [MaybeUninit::<u32>::uninit(); MAX_HIDDEN / 2];
-    let hp = permute_q15_uninit(&state.h[..hn], &mut hbuf);
     let stride = t.row_len.max(1);
     let rows = (4 * hn).min(t.rows.len()).min(t.weights.len() / stride);
     // Rows in PyTorch's gate order i, f, g, o: row g·H + j belongs to gate g of unit j.
     // acc[r] = [Σ W_ih[r]·x, Σ W_hh[r]·h]; written by the kernel, so not zeroed first.
     let mut acc = [MaybeUninit::<[i32; 2]>::uninit(); 4 * MAX_HIDDEN];
-    let acc = lstm_gate_sums(t.weights, stride, t.hh_offset, xp, hp, &mut acc[..rows]);
+    let acc = if t.blocked {
+        // Blocked weights (a RAM image): x and h in natural order, as words of value pairs.
+        let lo = |v: i16| v as u16 as u32;
+        let mut xw = [0u32; MAX_INPUT.div_ceil(4) * 2];
+        for (w, p) in xw.iter_mut().zip(x.chunks(2)) {
+            *w = lo(p[0]) | lo(p.get(1).copied().unwrap_or(0)) << 16;
+        }
+        let xn = (t.hh_offset / 2).min(xw.len());
+        let hv = t.row_len.saturating_sub(t.hh_offset).min(MAX_HIDDEN);
+        // h is word-aligned in the repr(C, align(4)) state; entries past H are 0.
+        let mut hcopy = [0u32; MAX_HIDDEN / 2];
+        let hw: &[u32] = match bytemuck::try_cast_slice(&state.h[..hv]) {
+            Ok(w) => w,
+            Err(_) => {
+                for (w, p) in hcopy.iter_mut().zip(state.h[..hv].chunks(2)) {
+                    *w = lo(p[0]) | lo(p.get(1).copied().unwrap_or(0)) << 16;
+                }
+                &hcopy[..hv / 2]
+            }
+        };
+        lstm_block_sums(
+            t.weights,
+            stride,
+            t.hh_offset,
+            &xw[..xn],
+            hw,
+            &mut acc[..rows],
+        )
+    } else {
+        // x and h in the dot kernel's lane order, zero-padded to whole groups of 4 (the
+        // weights' padding meets zeros, so the sums equal the plain dot products over I and H
+        // terms). Written by the permutation, so not zeroed first.
+        let mut xbuf = [MaybeUninit::<u32>::uninit(); MAX_INPUT.div_ceil(4) * 2];
+        let xp = permute_q15_uninit(x, &mut xbuf);
+        let mut hbuf = [MaybeUninit::<u32>::uninit(); MAX_HIDDEN / 2];
+        let hp = permute_q15_uninit(&state.h[..hn], &mut hbuf);
+        lstm_gate_sums(t.weights, stride, t.hh_offset, xp, hp, &mut acc[..rows])
+    };
     // Pass 1, row by row: each gate's activation (Q0.15) replaces its x sum. Rows 2H..3H are
     // the cell candidate g (tanh); the others are sigmoid gates.
     let (sig_if, rest) = acc.split_at_mut((2 * hn).min(rows));
@@ -192,7 +234,8 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
 /// `gates[g·hn + j][0]` (gate order i, f, g, o; the low 16 bits count): in assembly
 /// ([`crate::dsp::lstm_cell_update`]) where it runs, else [`cell_update_portable`].
 pub fn cell_update(gates: &[[i32; 2]], hn: usize, state: &mut LstmState, k: CellShifts) {
-    if !lstm_cell_update(gates, hn, state, k, activation::table(true)) {
+    let table = activation::table(true);
+    if !lstm_cell_update(gates, hn, &mut state.h, &mut state.c, k.kernel(), table) {
         cell_update_portable(gates, hn, state, k);
     }
 }

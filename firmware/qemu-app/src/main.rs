@@ -34,10 +34,11 @@ use slipguard_app::profile::Profile;
 use slipguard_app::replay::{self, CHEEZ_TRIAL, EmulatedSensor};
 use slipguard_app::schedule::Deadline;
 use slipguard_app::upload::{self, SimFlash, Uploader};
+use slipguard_core::model_ram::ModelRam;
 use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
 use slipguard_support::boot::ModelLine;
 use slipguard_support::semihosting::exit;
-use static_cell::StaticCell;
+use static_cell::{ConstStaticCell, StaticCell};
 
 /// The sensor profile of this build.
 const PROFILE: Profile = Profile::HAND;
@@ -86,6 +87,12 @@ fn script_bytes(index: u32, out: &mut heapless::Vec<u8, 2048>) {
         let _ = out.extend_from_slice(item.bytes);
     }
 }
+/// The model's RAM image, as on the board (`firmware/src/main.rs`).
+static MODEL_RAM: ConstStaticCell<ModelRam> = ConstStaticCell::new(ModelRam::new());
+/// Span of the cycle plugin (`firmware/qemu-bench/plugin`) around `App::infer`: a store to
+/// 0x2030_0000 + 8·1 opens it, + 4 closes it (RAM nothing else uses).
+const INFER_SPAN_OPEN: usize = 0x2030_0008;
+const INFER_SPAN_CLOSE: usize = 0x2030_000C;
 /// Frames the ADC side could not queue (none here: the emulation waits instead).
 static SKIPPED: AtomicU32 = AtomicU32::new(0);
 
@@ -177,7 +184,15 @@ async fn main(spawner: Spawner) {
     }
     let mut flash = SimFlash::new(slot0, slot1);
     let mut uploader = Uploader::new(upload::select(&flash, &PROFILE));
-    let app = APP.init_with(|| App::new(PROFILE, model_region()));
+    // As on the board (the factory slot's blob): the blob validated and copied to RAM, or run in place if it is bad.
+    let model_bytes = match MODEL_RAM.take().load(model_region()) {
+        Ok(image) => image,
+        Err(e) => {
+            hprintln!("slipguard-qemu-app: model stays in flash: {}", e);
+            model_region()
+        }
+    };
+    let app = APP.init_with(|| App::new(PROFILE, model_bytes));
     match app.model() {
         Ok(m) => hprintln!(
             "slipguard-qemu-app: {}",
@@ -231,9 +246,18 @@ async fn main(spawner: Spawner) {
                     app.note_skipped();
                     skipped_seen += 1;
                 }
+                let counted = input.fault == 0 && app.model().is_ok();
+                if counted {
+                    // SAFETY: an address in RAM that nothing else uses; the plugin watches it.
+                    unsafe { core::ptr::write_volatile(INFER_SPAN_OPEN as *mut u32, 1) };
+                }
                 let c0 = time_driver::cycles();
                 let r = app.infer(&input);
                 let c1 = time_driver::cycles();
+                if counted {
+                    // SAFETY: as above.
+                    unsafe { core::ptr::write_volatile(INFER_SPAN_CLOSE as *mut u32, 1) };
+                }
                 let late = deadline.is_late(available_us, Instant::now().as_micros());
                 if let Some(f) = app.emit_samples(&r, late) {
                     out.frame(&f);
@@ -243,7 +267,7 @@ async fn main(spawner: Spawner) {
                     out.frame(&f);
                     frames += 1;
                 }
-                if input.fault == 0 && app.model().is_ok() {
+                if counted {
                     stats.add((c1 - c0) * time_driver::INSNS_PER_CYCLE);
                 }
             }

@@ -1,7 +1,9 @@
 //! Benchmark harness: semihosting output, result checks and the exit code.
 //!
-//! - [`bench`] measures a closure with [`crate::insns::measure`] and prints one line
-//!   `bench <name>: <n> insns/iter (<iterations> iterations, <total> insns)`.
+//! - [`bench`] measures a closure with [`crate::insns::measure`] inside a span of the cycle
+//!   plugin and prints one line
+//!   `bench <name>: <n> insns/iter (<iterations> iterations, <total> insns) [span <id>]`;
+//!   `scripts/qemu-bench.sh` joins it with the plugin's cycles of that span.
 //! - [`check_equal`] compares a result with its expected value, prints `ok`/`MISMATCH` and records
 //!   mismatches; [`finish`] exits QEMU with 0 if there were none and 1 otherwise.
 //! - The panic handler (`slipguard_support::semihosting`) prints the panic and exits with 101
@@ -18,22 +20,29 @@ use crate::insns;
 use slipguard_support::semihosting::exit;
 
 static CHECKS: AtomicU32 = AtomicU32::new(0);
+/// Next cycle-plugin span (0 is the calibration's).
+static NEXT_SPAN: AtomicU32 = AtomicU32::new(insns::CALIBRATION_SPAN + 1);
 static MISMATCHES: AtomicU32 = AtomicU32::new(0);
 
 /// Measures `iterations` calls of `f` and prints `insns/iter`. Returns the instructions per
-/// iteration (rounded down). Keep `f`'s inputs and outputs behind `core::hint::black_box` so
-/// the compiler cannot hoist or drop the work.
-pub fn bench<F: FnMut()>(name: &str, iterations: u32, f: F) -> u64 {
+/// iteration (rounded down) and the cycle plugin's span id of the measurement. Keep `f`'s
+/// inputs and outputs behind `core::hint::black_box` so the compiler cannot hoist or drop the
+/// work.
+pub fn bench<F: FnMut()>(name: &str, iterations: u32, f: F) -> (u64, u32) {
+    let span = NEXT_SPAN.fetch_add(1, Ordering::Relaxed);
+    insns::span_marker(span, false);
     let total = insns::measure(iterations, f);
+    insns::span_marker(span, true);
     let per_iter = total / u64::from(iterations.max(1));
     hprintln!(
-        "bench {}: {} insns/iter ({} iterations, {} insns)",
+        "bench {}: {} insns/iter ({} iterations, {} insns) [span {}]",
         name,
         per_iter,
         iterations,
-        total
+        total,
+        span
     );
-    per_iter
+    (per_iter, span)
 }
 
 /// Records and prints whether `got == want`. A mismatch makes [`finish`] exit with 1.

@@ -25,9 +25,12 @@ use cortex_m::peripheral::syst::SystClkSource;
 pub const INSNS_PER_TICK: u64 = 40;
 /// SysTick reload value: the whole 24-bit counter.
 pub const RELOAD: u32 = 0x00FF_FFFF;
-/// Address the instruction-count plugin watches (`-plugin libinsncount.so,addr=0x20300000`).
-#[allow(dead_code)] // a tool for ad-hoc profiling runs; no default bench places markers
+/// Address the instruction-count and cycle plugins watch (`-plugin …,addr=0x20300000`): a
+/// store to `MARKER_ADDR + 8·id` opens span `id` of the cycle plugin (`plugin/m4cycles.c`),
+/// one to `MARKER_ADDR + 8·id + 4` closes it. Inside RAM, far from `.bss` and the stack.
 pub const MARKER_ADDR: usize = 0x2030_0000;
+/// The span of the bookkeeping calibration (an empty body), subtracted per iteration.
+pub const CALIBRATION_SPAN: u32 = 0;
 
 const UNCALIBRATED: u32 = u32::MAX;
 static OVERHEAD_PER_ITER: AtomicU32 = AtomicU32::new(UNCALIBRATED);
@@ -55,12 +58,14 @@ pub fn ticks_between(earlier: u32, later: u32) -> u32 {
     earlier.wrapping_sub(later) & RELOAD
 }
 
-/// Tells the insncount plugin (if loaded) "marker #`id`"; a store of about 2 instructions.
-#[allow(dead_code)] // a tool for ad-hoc profiling runs; no default bench places markers
+/// Opens (`end = false`) or closes span `id` of the cycle plugin (if loaded); one store, about
+/// 2 instructions. Ids past the plugin's 63 are ignored.
 #[inline(always)]
-pub fn marker(id: u32) {
-    // SAFETY: MARKER_ADDR is in the board's RAM and used by nothing else (see memory.x).
-    unsafe { core::ptr::write_volatile(MARKER_ADDR as *mut u32, id) }
+pub fn span_marker(id: u32, end: bool) {
+    let addr = MARKER_ADDR + 8 * id as usize + if end { 4 } else { 0 };
+    // SAFETY: MARKER_ADDR..+8·64 (the plugin's 64 spans) is in the board's RAM and used by nothing else (see
+    // memory.x); the plugin only watches the stores.
+    unsafe { core::ptr::write_volatile(addr as *mut u32, id) }
 }
 
 /// Runs `f` `iterations` times with the per-iteration SysTick sampling of [`measure`] and
@@ -79,9 +84,14 @@ pub fn measure_raw(iterations: u32, f: &mut dyn FnMut()) -> u64 {
     ticks * INSNS_PER_TICK
 }
 
+/// Iterations of the calibration (an empty body).
+pub const CALIBRATION_ITERATIONS: u32 = 4000;
+
 fn calibrate() {
-    const N: u32 = 4000;
+    const N: u32 = CALIBRATION_ITERATIONS;
+    span_marker(CALIBRATION_SPAN, false);
     let raw = measure_raw(N, &mut || {});
+    span_marker(CALIBRATION_SPAN, true);
     // The per-iteration cost is a whole number of instructions; N · 40-insn quantisation and
     // the fixed entry/exit cost amount to well under half an instruction per iteration.
     let per_iter = (raw + u64::from(N) / 2) / u64::from(N);

@@ -22,12 +22,14 @@ use slipguard_core::blob::{CRC32, LstmRowParams};
 use slipguard_core::const_math;
 use slipguard_core::decision::p_unstable;
 use slipguard_core::dsp::{
-    MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, dot_i8_i16, dot_i8_i16_fast, lstm_gate_sums,
-    lstm_gate_sums_portable, permute_q15, permute_q15_uninit,
+    BLOCK_ROWS, MAX_ASM_H_WORDS, MAX_ASM_VALUES, MAX_ASM_X_WORDS, MAX_BLOCK_H_CHUNKS,
+    MAX_BLOCK_X_CHUNKS, dot_i8_i16, dot_i8_i16_fast, lstm_block_sums, lstm_gate_sums,
+    lstm_gate_sums_portable, pack_lstm_blocks, permute_q15, permute_q15_uninit,
 };
 use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
 use slipguard_core::lstm::{self, LstmState};
 use slipguard_core::model::{ChannelState, Model};
+use slipguard_core::model_ram::{MODEL_RAM_BYTES, ModelRam};
 
 /// The blob must be 4-byte aligned to be read in place, as in the firmware's flash section.
 #[repr(C, align(4))]
@@ -232,6 +234,132 @@ fn check_lstm_kernel() {
     hprintln!("lstm kernel: {} cases", cases);
     harness::check_equal(
         "lstm kernel == portable (first layout, x words, h words)",
+        &first_bad,
+        &None,
+    );
+}
+
+/// Rows per call in the blocked-kernel checks: two blocks.
+const BLOCK_CHECK_ROWS: usize = 2 * BLOCK_ROWS;
+/// Largest row (bytes) in the blocked-kernel checks: both parts at their assembly maximum.
+const BLOCK_MAX_ROW: usize = 4 * (MAX_BLOCK_X_CHUNKS + MAX_BLOCK_H_CHUNKS);
+
+/// Weights for the blocked-kernel checks, word-aligned, plus 4 spare bytes for a misaligned view.
+#[repr(C, align(4))]
+struct BlockRows([i8; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
+
+/// The register-blocked LSTM kernel (`lstm_block_sums`, assembly on this target) on weights
+/// packed by `pack_lstm_blocks` against the row-major portable kernel on the original weights
+/// (`lstm_gate_sums_portable`, an independent path: other layout, other activation order), for
+/// every x part of 0..=3 chunks and h part of 0..=32 chunks, on random and extreme data; plus a
+/// misaligned and a too-short view (the portable fallback).
+fn check_block_kernel() {
+    let mut rng = Rng(0xb10c_0001);
+    let mut first_bad: Option<(&str, u32, usize, usize)> = None;
+    let mut cases = 0u32;
+    for pattern in 0..4u32 {
+        for xc in 0..=MAX_BLOCK_X_CHUNKS {
+            for hc in 0..=MAX_BLOCK_H_CHUNKS {
+                let (hh, stride) = (4 * xc, 4 * (xc + hc));
+                let len = BLOCK_CHECK_ROWS * stride;
+                // Row-major weights in [-127, 127] (the exporter's range), -128 in a rows too.
+                let mut w = BlockRows([0; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
+                for (i, b) in w.0[..len].iter_mut().enumerate() {
+                    let r = rng.next();
+                    let a_row = (i / stride.max(1)) % 2 == 0;
+                    *b = match pattern {
+                        0 => ((r % 255) as i32 - 127) as i8,
+                        1 => {
+                            if a_row {
+                                -128
+                            } else {
+                                -127
+                            }
+                        }
+                        2 => {
+                            if r & 1 == 0 {
+                                -127
+                            } else {
+                                127
+                            }
+                        }
+                        _ => {
+                            if a_row && r & 2 == 0 {
+                                -128
+                            } else if r & 1 == 0 {
+                                -127
+                            } else {
+                                127
+                            }
+                        }
+                    };
+                }
+                let mut v = [0i16; 4 * (MAX_BLOCK_X_CHUNKS + MAX_BLOCK_H_CHUNKS)];
+                for x in v[..stride].iter_mut() {
+                    let r = rng.next();
+                    *x = match pattern {
+                        0 => r as i16,
+                        1 => i16::MIN,
+                        _ => {
+                            if r & 4 == 0 {
+                                i16::MIN
+                            } else {
+                                i16::MAX
+                            }
+                        }
+                    };
+                }
+                let (xv, hv) = v[..stride].split_at(hh);
+                let natural = |v: &[i16], out: &mut [u32]| {
+                    for (o, p) in out.iter_mut().zip(v.chunks(2)) {
+                        *o = p[0] as u16 as u32 | (p[1] as u16 as u32) << 16;
+                    }
+                };
+                let (mut xn, mut hn) = (
+                    [0u32; 2 * MAX_BLOCK_X_CHUNKS],
+                    [0u32; 2 * MAX_BLOCK_H_CHUNKS],
+                );
+                natural(xv, &mut xn);
+                natural(hv, &mut hn);
+                let (mut xp, mut hp) = (
+                    [0u32; 2 * MAX_BLOCK_X_CHUNKS],
+                    [0u32; 2 * MAX_BLOCK_H_CHUNKS],
+                );
+                let xpn = permute_q15(xv, &mut xp);
+                let hpn = permute_q15(hv, &mut hp);
+                let mut want = [[0i32; 2]; BLOCK_CHECK_ROWS];
+                lstm_gate_sums_portable(&w.0[..len], stride, hh, &xp[..xpn], &hp[..hpn], &mut want);
+                let mut packed = BlockRows([0; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
+                if !pack_lstm_blocks(&w.0[..len], stride, &mut packed.0[..len]) && stride > 0 {
+                    first_bad.get_or_insert(("pack refused", pattern, xc, hc));
+                    continue;
+                }
+                // Aligned (assembly), then one byte off (portable fallback, after a copy).
+                for (name, start) in [("aligned", 0), ("misaligned", 1)] {
+                    if start == 1 {
+                        packed.0.copy_within(0..len, 1);
+                    }
+                    let wv = &packed.0[start..start + len];
+                    let mut buf = [MaybeUninit::<[i32; 2]>::uninit(); BLOCK_CHECK_ROWS];
+                    let got = lstm_block_sums(
+                        black_box(wv),
+                        stride,
+                        hh,
+                        &xn[..xc * 2],
+                        &hn[..hc * 2],
+                        &mut buf,
+                    );
+                    cases += 1;
+                    if got[..] != want[..] {
+                        first_bad.get_or_insert((name, pattern, xc, hc));
+                    }
+                }
+            }
+        }
+    }
+    hprintln!("lstm blocked kernel: {} cases", cases);
+    harness::check_equal(
+        "lstm blocked kernel == row-major portable (first layout, pattern, x chunks, h chunks)",
         &first_bad,
         &None,
     );
@@ -447,6 +575,7 @@ fn main() -> ! {
 
     check_dsp_kernel();
     check_lstm_kernel();
+    check_block_kernel();
     check_gate_pass();
     check_cell_update();
     check_dense_kernel();
@@ -469,44 +598,78 @@ fn main() -> ! {
         BLOB.0.len()
     );
 
-    // 1. Bit-exact check: every step against the host's record.
-    let mut st = ChannelState::new();
-    let mut first_bad = None;
-    for i in 0..steps {
-        let got = record(model.step(&mut st, input(i)), &st);
-        if got[..] != EXPECTED[RECORD * i..RECORD * (i + 1)] && first_bad.is_none() {
-            first_bad = Some(i);
+    // The blob copied into RAM, as the firmware does at boot: the kernels then read their
+    // weights without flash wait states. Every figure below uses the copy but the first.
+    let mut ram = ModelRam::<MODEL_RAM_BYTES>::new();
+    let ram_model = match ram.load(&BLOB.0).map(Model::from_bytes) {
+        Ok(Ok(m)) => m,
+        _ => {
+            hprintln!("golden model not copied to RAM");
+            harness::check_equal("golden model copied to RAM", &false, &true);
+            harness::finish()
         }
+    };
+
+    // A plain copy in RAM (row-major weights, the row kernel): what the RAM image adds beyond
+    // taking the weights out of flash. A buffer of exactly the blob's size leaves no room for
+    // the image's CRC, so `load` makes a plain copy.
+    let mut plain = ModelRam::<80_432>::new();
+    let plain_model = match plain.load(&BLOB.0).map(Model::from_bytes) {
+        Ok(Ok(m)) if !m.blob().lstm[0].blocked => m,
+        _ => {
+            hprintln!("golden model not copied to RAM as a plain copy");
+            harness::check_equal("golden model copied to RAM (plain)", &false, &true);
+            harness::finish()
+        }
+    };
+
+    // 1. Bit-exact check: every step against the host's record, from flash and from RAM.
+    for (name, model) in [
+        ("flash", &model),
+        ("RAM (image)", &ram_model),
+        ("RAM (plain copy)", &plain_model),
+    ] {
+        let mut st = ChannelState::new();
+        let mut first_bad = None;
+        for i in 0..steps {
+            let got = record(model.step(&mut st, input(i)), &st);
+            if got[..] != EXPECTED[RECORD * i..RECORD * (i + 1)] && first_bad.is_none() {
+                first_bad = Some(i);
+            }
+        }
+        hprintln!("model in {}:", name);
+        harness::check_equal(
+            "  all steps equal the host (first differing step)",
+            &first_bad,
+            &None,
+        );
     }
-    harness::check_equal(
-        "all steps equal the host (first differing step)",
-        &first_bad,
-        &None,
-    );
 
     // 2. Whole channel step: sample → STFT → normalise → LSTM → dense → decision.
-    let mut st = ChannelState::new();
-    let mut i = 0;
-    // Markers #1/#2 bracket this span for the exact insncount plugin (../shared/tools/qemu-plugins).
-    insns::marker(1);
-    let step = harness::bench("channel step (variant c, H=128)", steps as u32, || {
-        black_box(model.step(&mut st, black_box(input(i % steps))));
-        i += 1;
-    });
-    insns::marker(2);
+    let step_bench = |name: &str, model: &Model<'_>| {
+        let mut st = ChannelState::new();
+        let mut i = 0;
+        harness::bench(name, steps as u32, || {
+            black_box(model.step(&mut st, black_box(input(i % steps))));
+            i += 1;
+        })
+    };
+    let (step_flash, span_flash) = step_bench("channel step, weights in flash", &model);
+    let (_, span_plain) = step_bench("channel step, plain RAM copy (row kernel)", &plain_model);
+    let (step, span_step) = step_bench("channel step (variant c, H=128)", &ram_model);
 
-    // 3. Parts, on the same model and inputs.
-    let blob = model.blob();
+    // 3. Parts, on the same model (in RAM) and inputs.
+    let blob = ram_model.blob();
     let lstm_t = blob.lstm[0];
     let mut ls = LstmState::new();
     let x = [
         1234i16, -2345, 345, 456, -567, 678, 789, -890, 901, 120, -230,
     ];
-    let lstm_insns = harness::bench("LSTM cell step (11 -> 128)", 50, || {
+    let (lstm_insns, span_lstm) = harness::bench("LSTM cell step (11 -> 128)", 50, || {
         lstm::step(black_box(&lstm_t), &mut ls, black_box(&x));
     });
     let h = ls.h;
-    harness::bench("dense + softmax (128 -> p)", 200, || {
+    let (_, span_dense) = harness::bench("dense + softmax (128 -> p)", 200, || {
         black_box(p_unstable(black_box(&blob.dense), &[black_box(&h[..128])]));
     });
     let plan = match StftPlan::new(StftConfig::PAPER) {
@@ -516,7 +679,7 @@ fn main() -> ! {
     let mut ss = StftState::new();
     let mut out = [0i16; 10];
     let mut j = 0u32;
-    harness::bench("STFT step (N=20, 10 bands)", 200, || {
+    let (_, span_stft) = harness::bench("STFT step (N=20, 10 bands)", 200, || {
         j += 1;
         plan.step(
             &mut ss,
@@ -526,22 +689,46 @@ fn main() -> ! {
         black_box(&out);
     });
 
+    // 4. A 16-channel frame: every channel of the hand through the model, as `App::infer`
+    //    does (without its fault and decision bookkeeping).
+    let mut frame_states = [const { ChannelState::new() }; 16];
+    let mut k = 0;
+    let (frame, span_frame) = harness::bench("16-channel frame", steps as u32 / 4, || {
+        for (c, st) in frame_states.iter_mut().enumerate() {
+            black_box(ram_model.step(st, black_box(input((k + 7 * c) % steps))));
+        }
+        k += 1;
+    });
+
     let lstm_macs = macs - 2 * 128;
     hprintln!(
-        "summary: {} insns per channel step = {:.3} insns per MAC ({} MACs); LSTM cell alone {:.3} insns per MAC",
+        "summary: {} insns per channel step = {:.3} insns per MAC ({} MACs); LSTM cell alone {:.3} insns per MAC; from flash {} insns",
         step,
         step as f32 / macs as f32,
         macs,
-        lstm_insns as f32 / lstm_macs as f32
+        lstm_insns as f32 / lstm_macs as f32,
+        step_flash
     );
-    // 16 channels at 16.7 Hz and 40 Hz on a 168 MHz M4, counting one instruction as one cycle
-    // (a lower bound: QEMU models no wait states or pipeline stalls).
-    let frame = (step * 16) as f32;
+    // Instructions only; `scripts/qemu-bench.sh` adds the cycle plugin's estimate per span.
     hprintln!(
-        "summary: 16-channel frame {} insns; at 168 MHz: 16.7 Hz -> {:.2} % CPU, 40 Hz -> {:.2} % CPU",
-        step * 16,
-        frame * 16.7 / 168e6 * 100.0,
-        frame * 40.0 / 168e6 * 100.0
+        "summary: 16-channel frame {} insns; at 168 MHz, 1 insn/cycle: 16.7 Hz -> {:.2} % CPU, 40 Hz -> {:.2} % CPU",
+        frame,
+        frame as f32 * 16.7 / 168e6 * 100.0,
+        frame as f32 * 40.0 / 168e6 * 100.0
+    );
+    hprintln!(
+        "parts: step={} step_flash={} step_plain={} lstm={} stft={} dense={} frame={} calibration={} calibration_iters={} macs={} lstm_macs={}",
+        span_step,
+        span_flash,
+        span_plain,
+        span_lstm,
+        span_stft,
+        span_dense,
+        span_frame,
+        insns::CALIBRATION_SPAN,
+        insns::CALIBRATION_ITERATIONS,
+        macs,
+        lstm_macs
     );
     harness::finish()
 }
