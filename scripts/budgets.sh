@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Budgets report (issue 6, item 7): flash and static RAM of the release firmware ELF with the
+# Budgets report: flash and static RAM of the release firmware ELF with the
 # default model blob, instructions per 16-channel frame under QEMU -icount, and the CPU share of
 # a 168 MHz Cortex-M4 at 16.7 Hz and 40 Hz. A report, not a timed test: it exits 0 whatever the
 # figures, unless `--strict` is given (then 1 when a target is missed).

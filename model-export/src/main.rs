@@ -17,7 +17,7 @@ use slipguard_export::write::{atomic_write, rust_snippet};
 const EXAMPLES: &str = "\
 Examples, one per input format:
   # our trainer / any PyTorch nn.LSTM + nn.Linear state_dict saved as safetensors (settings in its metadata)
-  slipguard-export export runs/c.safetensors --data shared/data/eagle-shoal -o model.bin --rust-snippet model_blob.rs
+  slipguard-export export runs/c.safetensors --data data/eagle-shoal -o model.bin --rust-snippet model_blob.rs
 
   # ONNX from torch.onnx.export (settings from a JSON file and options)
   slipguard-export export slip.onnx --settings slip.settings.json --variant c --data rec/ -o model.bin
@@ -29,7 +29,7 @@ Examples, one per input format:
   slipguard-export export slip.weights.h5 --variant c --fit-norm --data rec/ -o model.bin
 
   slipguard-export inspect model.bin
-  slipguard-export verify model.bin --float runs/c.safetensors --data shared/data/eagle-shoal
+  slipguard-export verify model.bin --float runs/c.safetensors --data data/eagle-shoal
 
 Exit codes: 0 ok, 2 usage, 3 I/O, 4 unreadable/truncated file, 5 missing or misnamed tensor,
 6 wrong shape, 7 NaN/Inf weight, 8 unsupported construct, 9 over the firmware's bounds,
