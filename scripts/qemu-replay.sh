@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Byte-for-byte check of the emulated firmware against the host replay (issue 6, item 6).
+# Byte-for-byte check of the emulated firmware against the host replay.
 #
 # 1. Builds firmware/qemu-app (the firmware application with the recorded-trial board layer) and
 #    runs it under QEMU mps2-an386; it writes every frame it sends to qemu-frames.bin (semihosting).
@@ -23,7 +23,7 @@ if [ "${KEEP_DIR:-0}" != 1 ]; then trap 'rm -rf "$work"' EXIT; else echo "qemu-r
 
 (cd "$root/firmware" && cargo build --release -p slipguard-qemu-app)
 elf="${CARGO_TARGET_DIR:-$root/firmware/target}/thumbv7em-none-eabihf/release/slipguard-qemu-app"
-(cd "$root" && cargo build -q -p slipguard-host --bin slipguard)
+(cd "$root" && cargo build -q -p slipguard --bin slipguard)
 slipguard="${CARGO_TARGET_DIR:-$root/target}/debug/slipguard"
 trial="$root/firmware/app/fixtures/Cheez_100_814_top_3.csv"
 golden="$root/firmware/core/tests/fixtures/bench/model.bin"

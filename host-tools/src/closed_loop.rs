@@ -4,13 +4,12 @@
 //! flag frame says "unstable", with the firmware's real latency. The paper's DoraHand tests
 //! (section III.C): heavy object, sudden added weight, gradually added weight, in-hand rotation.
 //!
-//! Physics: the friction model of the force simulator (`sim::force`, docs/simulator.md) with the
-//! same constants (`RHO_STICK_SLIP`, `EROSION_ONSET`, `KINETIC_RATIO`, `AREA_LOSS`,
-//! `LOSS_TAU_S`, 1 kHz) and the same drawn object/hand parameters (`ForceParams::draw`: contact
-//! pads, shares, gains, μ_s, lift pulse via `ForceParams::accel`, stick-slip, creep, erosion,
-//! contact length, wedging). What differs is that the grip is an input (the controller's) and
-//! the load follows the situation; the equations are restated here step by step because
-//! `sim::force::integrate` runs a fixed grip schedule. docs/integration.md ("closed loop")
+//! Physics: the force simulator's friction model, stepped tick by tick
+//! (`slipguard_sim::force::Contact`, docs/simulator.md), with the same drawn object/hand
+//! parameters (`ForceParams::draw`: contact pads, shares, gains, μ_s, lift pulse via
+//! `ForceParams::accel`, stick-slip, creep, erosion, contact length, wedging). What differs is
+//! that the grip is an input (the controller's) and the load, mass and friction follow the
+//! situation. docs/integration.md ("closed loop")
 //! documents the situations, the controller and the results.
 
 use rand::Rng;
@@ -23,12 +22,10 @@ use slipguard_app::frontend::Frontend;
 use slipguard_app::profile::Profile;
 use slipguard_core::protocol::{self, Command, Deframer, Frame, MAX_WIRE, Message, status};
 
-use crate::evaluation::Sequence;
-use crate::sim::force::{
-    AREA_LOSS, EROSION_ONSET, ForceParams, ForceSimConfig, INTERNAL_HZ, Intent, KINETIC_RATIO,
-    LOSS_TAU_S, RHO_STICK_SLIP,
-};
-use crate::sim::{normal, trial_rng, uniform};
+use slipguard_learn::evaluation::Sequence;
+pub use slipguard_sim::force::Contact;
+use slipguard_sim::force::{ForceParams, ForceSimConfig, INTERNAL_HZ, Intent, RHO_STICK_SLIP};
+use slipguard_sim::{normal, trial_rng, uniform};
 
 const G: f64 = 9.81;
 
@@ -207,73 +204,14 @@ impl Scenario {
             _ => 1.0,
         }
     }
-}
 
-/// The friction state of the held object, advanced one 1 kHz tick at a time with the force
-/// simulator's equations.
-#[derive(Clone, Debug, Default)]
-pub struct Contact {
-    s_mm: f64,
-    v_mm_s: f64,
-    phase: f64,
-    gross: bool,
-    erosion: f64,
-    /// Time the object was lost.
-    pub t_loss: Option<f64>,
-    n_at_loss: f64,
-    /// Load ratio of the last tick.
-    pub rho: f64,
-    /// Time incipient slip (ρ ≥ 0.85) was first reached.
-    pub t_slip: Option<f64>,
-}
-
-impl Contact {
-    /// One tick at time `t` with grip `grip` (N); returns (normal force the pads read (N),
-    /// tangential load carried (N)).
-    pub fn tick(&mut self, sc: &Scenario, t: f64, grip: f64) -> (f64, f64) {
-        let p = &sc.p;
-        let dt = 1.0 / INTERNAL_HZ;
-        let load = sc.load(t);
-        if let Some(tl) = self.t_loss {
-            return (self.n_at_loss * (-(t - tl) / LOSS_TAU_S).exp(), 0.0);
-        }
-        let frac = (self.s_mm / p.contact_len_mm).min(1.0);
-        let mu_eff = p.mu_s * (1.0 - AREA_LOSS * frac) * (1.0 - self.erosion) * sc.mu_factor(t);
-        let cap = mu_eff * grip;
-        let rho = if cap > 0.0 { load / cap } else { 0.0 };
-        self.rho = rho;
-        let mut factor = 1.0;
-        if load > 0.0 {
-            self.erosion =
-                (self.erosion + p.erosion_rate * (rho - EROSION_ONSET).max(0.0) * dt).min(0.5);
-            if rho >= RHO_STICK_SLIP {
-                self.t_slip.get_or_insert(t);
-            }
-        }
-        if !self.gross && load > 0.0 && rho >= 1.0 {
-            self.gross = true;
-        }
-        if self.gross {
-            let kin = KINETIC_RATIO * mu_eff * grip;
-            let acc = (load - kin) / sc.mass(t) * 1000.0;
-            self.v_mm_s = (self.v_mm_s + acc * dt).max(0.0);
-            if self.v_mm_s == 0.0 && acc <= 0.0 {
-                self.gross = false;
-            }
-            self.s_mm += self.v_mm_s * dt;
-            factor = (1.0 - 0.5 * frac) * (1.0 + p.wedge * (std::f64::consts::PI * frac).sin());
-        } else if load > 0.0 && rho >= RHO_STICK_SLIP {
-            let x = ((rho - RHO_STICK_SLIP) / (1.0 - RHO_STICK_SLIP)).clamp(0.0, 1.0);
-            self.phase += p.stick_slip_hz * dt;
-            let cyc = 0.5 * (1.0 - (2.0 * std::f64::consts::PI * self.phase).cos());
-            self.s_mm += p.creep_mm_s * x * 2.0 * cyc * dt;
-            factor = 1.0 - p.vib_amp * x * cyc;
-        }
-        if self.s_mm >= p.contact_len_mm {
-            self.t_loss = Some(t);
-            self.n_at_loss = grip * factor;
-        }
-        (grip * factor, load)
+    /// One 1 kHz tick of the slip physics at `t` with the controller's grip `grip` (N);
+    /// returns (normal force the pads read (N), tangential load carried (N)).
+    pub fn tick(&self, contact: &mut Contact, t: f64, grip: f64) -> (f64, f64) {
+        let lost = contact.t_loss.is_some();
+        let load = self.load(t);
+        let normal = contact.tick(&self.p, t, grip, load, self.mass(t), self.mu_factor(t));
+        (normal, if lost { 0.0 } else { load })
     }
 }
 
@@ -493,7 +431,7 @@ pub fn run_trial(
         if t >= T_CONTACT_S {
             grip += (dt / (ACTUATOR_TAU_S + dt)) * (cmd - grip);
         }
-        let (normal_n, load) = contact.tick(sc, t, grip);
+        let (normal_n, load) = sc.tick(&mut contact, t, grip);
         // Pads (the force simulator's sensor: shares, gains, shear cross-talk, 20 ms lag).
         let shear = load * sc.p.shear_coupling;
         for (k, &ch) in sc.p.contacts.iter().enumerate() {
@@ -632,7 +570,7 @@ pub fn min_grip_needed(sc: &Scenario, ctl: &ControllerConfig) -> f64 {
             if t >= T_CONTACT_S {
                 grip += (dt / (ACTUATOR_TAU_S + dt)) * (g - grip);
             }
-            c.tick(sc, t, grip);
+            sc.tick(&mut c, t, grip);
             if c.t_loss.is_some() {
                 return false;
             }
@@ -771,8 +709,8 @@ impl Default for TrainingConfig {
 /// start, one per contact channel plus one channel without contact (all stable), as the
 /// firmware runs every channel. Use seeds other than the closed-loop report's.
 pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<Sequence> {
-    use crate::labels::ChannelSequence;
-    use crate::trial::{Outcome as TrialOutcome, Stability};
+    use slipguard_data::labels::ChannelSequence;
+    use slipguard_data::trial::{Outcome as TrialOutcome, Stability};
     let period_s = 1000.0 / cfg.rate_mhz as f64;
     let lead = (cfg.lead_s / period_s).round() as usize;
     let mut out = Vec::new();
@@ -805,7 +743,7 @@ pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<
         let policy = match &cfg.policy {
             Some(blob) if rng.random_bool(cfg.policy_share.clamp(0.0, 1.0)) => {
                 let threshold = uniform(&mut rng, 0.07, 0.2);
-                ctl.decision = Some((crate::checkpoint::threshold_q15(threshold), 1, 1));
+                ctl.decision = Some((slipguard_learn::checkpoint::threshold_q15(threshold), 1, 1));
                 Some(blob.as_bytes())
             }
             _ => None,

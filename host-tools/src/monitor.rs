@@ -20,7 +20,7 @@ use slipguard_core::protocol::{
     status,
 };
 
-use crate::trial::{Outcome, SensorKind, Stability, Trial, Unit};
+use slipguard_data::trial::{Outcome, SensorKind, Stability, Trial, Unit};
 
 /// Counters of a monitoring session.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

@@ -4,9 +4,10 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::error::{DataError, Result};
-use crate::labels::TrialLabels;
-use crate::trial::Trial;
+use slipguard_data::error::{DataError, Result};
+use slipguard_data::labels::TrialLabels;
+use slipguard_data::trial::{Stability, Trial};
+use slipguard_learn::evaluation::Sequence;
 
 const PALETTE: [RGBColor; 8] = [
     RGBColor(31, 119, 180),
@@ -283,7 +284,7 @@ pub type Fig8Chart<'a, DB> = ChartContext<
 
 /// The paper's Fig. 8 phase marks — grasp (green dotted), lift (yellow dotted), drop (red
 /// dash-dot) — as vertical lines with legend entries, then the legend itself. Shared by every
-/// Fig. 8 plot (`evaluation::plot_prediction`, `replay::plot_fig8`).
+/// Fig. 8 plot ([`plot_prediction`], `replay::plot_fig8`).
 pub fn draw_fig8_marks<'a, DB: DrawingBackend + 'a>(
     chart: &mut Fig8Chart<'a, DB>,
     n: usize,
@@ -316,4 +317,70 @@ pub fn draw_fig8_marks<'a, DB: DrawingBackend + 'a>(
         .label_font(("sans-serif", 11))
         .position(SeriesLabelPosition::LowerLeft)
         .draw()
+}
+
+/// Fig. 8 of the paper for one sequence: normalised force (thin blue), label (red dashed bold),
+/// prediction (blue bold), 1 = stable and 0 = unstable as in the paper, with grasp (green
+/// dotted), lift (yellow dotted) and drop (red dash-dot) marks.
+pub fn plot_prediction(s: &Sequence, pred: &[Stability], title: &str, path: &Path) -> Result<()> {
+    draw_prediction(s, pred, title, path).map_err(|e| perr(path, e))
+}
+
+fn draw_prediction(
+    s: &Sequence,
+    pred: &[Stability],
+    title: &str,
+    path: &Path,
+) -> std::result::Result<(), Box<dyn std::error::Error>> {
+    if let Some(d) = path.parent() {
+        std::fs::create_dir_all(d)?;
+    }
+    let root = BitMapBackend::new(path, (900, 420)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let n = s.cs.samples.len();
+    let max = s.cs.samples.iter().copied().fold(f32::MIN, f32::max);
+    let min = s.cs.samples.iter().copied().fold(f32::MAX, f32::min);
+    let span = (max - min).max(1e-6);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 16))
+        .margin(8)
+        .x_label_area_size(30)
+        .y_label_area_size(45)
+        .build_cartesian_2d(0f32..n as f32, -0.05f32..1.15f32)?;
+    chart
+        .configure_mesh()
+        .x_desc(format!("step ({} Hz)", s.rate_hz))
+        .y_desc("1 = stable, 0 = unstable")
+        .light_line_style(WHITE.mix(0.0))
+        .draw()?;
+    let blue = RGBColor(31, 119, 180);
+    chart
+        .draw_series(LineSeries::new(
+            (0..n).map(|i| (i as f32, (s.cs.samples[i] - min) / span)),
+            blue.stroke_width(1),
+        ))?
+        .label("normalised force")
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], blue));
+    let stable = |v: Stability| if v.is_unstable() { 0.0 } else { 1.0 };
+    chart
+        .draw_series(DashedLineSeries::new(
+            (0..n).map(|i| (i as f32, stable(s.cs.labels[i]) + 0.02)),
+            8,
+            5,
+            RED.stroke_width(3),
+        ))?
+        .label("label")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], RED.stroke_width(3)));
+    chart
+        .draw_series(LineSeries::new(
+            (0..n).map(|i| (i as f32, stable(pred[i]))),
+            RGBColor(0, 40, 160).stroke_width(3),
+        ))?
+        .label("prediction")
+        .legend(|(x, y)| {
+            PathElement::new([(x, y), (x + 14, y)], RGBColor(0, 40, 160).stroke_width(3))
+        });
+    draw_fig8_marks(&mut chart, n, Some(0), s.lift, s.cs.drop_index)?;
+    root.present()?;
+    Ok(())
 }

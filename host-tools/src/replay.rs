@@ -13,9 +13,9 @@ use slipguard_core::blob::AlignedBlob;
 use slipguard_core::model::Model;
 use slipguard_core::protocol::{self, Command, Deframer, Flags, Frame, MAX_WIRE, Message, P_NONE};
 
-use crate::error::{DataError, Result};
-use crate::labels::{LabelConfig, label_annotated};
-use crate::trial::{Trial, Unit};
+use slipguard_data::error::{DataError, Result};
+use slipguard_data::labels::{LabelConfig, label_annotated};
+use slipguard_data::trial::{Trial, Unit};
 
 /// The golden variant (c) blob (random PyTorch-init weights) shipped with the core's tests.
 pub fn golden_model_path() -> PathBuf {

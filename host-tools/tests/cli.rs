@@ -61,7 +61,7 @@ fn simulate_writes_readable_recordings() {
 #[test]
 fn train_refuses_a_closed_loop_policy_it_cannot_use() {
     // The golden blob runs at 16.7 Hz: refused for a 40 Hz model, before any training.
-    let golden = slipguard_host::replay::golden_model_path();
+    let golden = slipguard::replay::golden_model_path();
     let out = slipguard()
         .args([
             "train",

@@ -1,10 +1,10 @@
 //! Closed-loop grasp simulation: the physics drops the light grasps, a perfect predictor with
 //! the firmware's latency saves most of them, the latency is what it should be, the minimum
 //! grip is a real boundary, and the firmware path (golden model, bad blob) is wired in.
-use slipguard_host::closed_loop::{
+use slipguard::closed_loop::{
     ControllerConfig, FlagSource, Scenario, Situation, T_LIFT_S, min_grip_needed, run_trial,
 };
-use slipguard_host::replay::golden_model_path;
+use slipguard::replay::golden_model_path;
 
 const CTL: ControllerConfig = ControllerConfig {
     step_fraction: 0.2,
@@ -59,7 +59,7 @@ fn hold_off_spaces_the_raises() {
             ..CTL
         };
         let held = run_trial(&sc, src, &held_ctl, None, 1);
-        let gaps = |o: &slipguard_host::closed_loop::Outcome| -> Vec<f64> {
+        let gaps = |o: &slipguard::closed_loop::Outcome| -> Vec<f64> {
             o.raise_times.windows(2).map(|w| w[1] - w[0]).collect()
         };
         close += gaps(&free).iter().filter(|&&g| g < 0.1).count();
@@ -91,16 +91,16 @@ fn reaction_comes_one_frame_after_the_slip() {
         // The slip time of the uncontrolled run equals the controlled one's until the first
         // raise: the oracle sees it at the next frame boundary, the controller one period
         // (+ 0.61 ms transmission, + 1 ms tick) later.
-        let mut c = slipguard_host::closed_loop::Contact::default();
+        let mut c = slipguard::closed_loop::Contact::default();
         let mut grip = 0.0;
         let mut t_slip = None;
         for k in 0..8000 {
             let t = k as f64 / 1000.0;
-            if t >= slipguard_host::closed_loop::T_CONTACT_S {
-                grip += (0.001 / (slipguard_host::closed_loop::ACTUATOR_TAU_S + 0.001))
+            if t >= slipguard::closed_loop::T_CONTACT_S {
+                grip += (0.001 / (slipguard::closed_loop::ACTUATOR_TAU_S + 0.001))
                     * (sc.initial_grip_n - grip);
             }
-            c.tick(&sc, t, grip);
+            sc.tick(&mut c, t, grip);
             if c.t_slip.is_some() {
                 t_slip = c.t_slip;
                 break;
@@ -141,7 +141,7 @@ fn minimum_grip_is_a_boundary() {
 
 #[test]
 fn firmware_in_the_loop() {
-    let blob = slipguard_host::replay::load_blob(&golden_model_path()).unwrap();
+    let blob = slipguard::replay::load_blob(&golden_model_path()).unwrap();
     let sc = Scenario::draw(5, 0, Situation::Heavy);
     let o = run_trial(&sc, FlagSource::Model(blob.as_bytes()), &CTL, None, 1);
     // 8 s at 16.7 Hz: 133 frames, the last one still in flight.
@@ -150,7 +150,7 @@ fn firmware_in_the_loop() {
     // The untrained golden model says p ≈ 0.55 ≥ its 0.5 threshold everywhere: the grip goes
     // up every frame after grasp start until the hand's limit.
     assert!(o.unstable_frames > 100);
-    assert_eq!(o.final_grip_n, slipguard_host::closed_loop::MAX_GRIP_N);
+    assert_eq!(o.final_grip_n, slipguard::closed_loop::MAX_GRIP_N);
     // A corrupted blob: fault frames only, no grip change (the controller keeps its policy).
     let mut b = std::fs::read(golden_model_path()).unwrap();
     b[5000] ^= 0x10;
@@ -178,7 +178,7 @@ fn recorded_frames_match_the_pad_physics() {
     let sc = Scenario::draw(5, 1, Situation::SuddenWeight);
     let o = run_trial(&sc, FlagSource::Off, &CTL, None, 1);
     let period = 1.0 / 16.7;
-    assert!((o.frames[0].t - slipguard_host::closed_loop::T_CONTACT_S).abs() <= period);
+    assert!((o.frames[0].t - slipguard::closed_loop::T_CONTACT_S).abs() <= period);
     assert!((126..=129).contains(&o.frames.len()), "{}", o.frames.len());
     let ch = sc.p.contacts[0];
     let grip_mn = 1000.0 * sc.initial_grip_n * sc.p.gains[ch];
@@ -231,12 +231,12 @@ fn teacher_false_alarms_raise_the_grip_without_slip() {
 
 #[test]
 fn training_sequences_with_a_policy_in_the_loop() {
-    use slipguard_host::closed_loop::{TrainingConfig, training_sequences};
-    use slipguard_host::trial::{Outcome, Stability};
+    use slipguard::closed_loop::{TrainingConfig, training_sequences};
+    use slipguard_data::trial::{Outcome, Stability};
     // The untrained golden model (p ≈ 0.55 everywhere, above any policy threshold drawn) in the
     // loop: the controller raises the grip on every frame from grasp start, so nothing drops
     // (with the teacher, some of these light grips do) and the physics labels end stable.
-    let blob = slipguard_host::replay::load_blob(&golden_model_path()).unwrap();
+    let blob = slipguard::replay::load_blob(&golden_model_path()).unwrap();
     let teacher = TrainingConfig::default();
     let cfg = TrainingConfig {
         policy: Some(blob),
@@ -258,9 +258,9 @@ fn training_sequences_with_a_policy_in_the_loop() {
 
 #[test]
 fn training_sequences_are_labelled_by_the_physics() {
-    use slipguard_host::closed_loop::training_sequences;
-    use slipguard_host::trial::{Outcome, Stability};
-    let cfg = slipguard_host::closed_loop::TrainingConfig::default();
+    use slipguard::closed_loop::training_sequences;
+    use slipguard_data::trial::{Outcome, Stability};
+    let cfg = slipguard::closed_loop::TrainingConfig::default();
     let seqs = training_sequences(900, 8, &cfg);
     // Same seed, same sequences.
     assert_eq!(seqs.len(), training_sequences(900, 8, &cfg).len());
@@ -316,8 +316,8 @@ fn shipped_40hz_model_in_the_loop() {
     // by slip prediction alone: no raise comes before the lift, and ignoring the flags of the
     // first 0.5 s after grasp start changes nothing (docs/integration.md has the seed-1 report:
     // 144 of 200).
-    let blobs = slipguard_host::replay::shipped_blobs("hand-force-40hz");
-    let blob = slipguard_host::replay::load_blob(&blobs[0]).unwrap();
+    let blobs = slipguard::replay::shipped_blobs("hand-force-40hz");
+    let blob = slipguard::replay::load_blob(&blobs[0]).unwrap();
     let ctl = ControllerConfig {
         rate_mhz: 40_000,
         ..CTL

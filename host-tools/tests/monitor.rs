@@ -4,8 +4,8 @@ use std::io::{BufRead, BufReader, Write};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use slipguard::monitor::{Event, Monitor};
 use slipguard_core::protocol::{self, Flags, Frame, MAX_WIRE, Message, P_NONE, status};
-use slipguard_host::monitor::{Event, Monitor};
 
 fn hex(s: &str) -> Vec<u8> {
     (0..s.len())
@@ -251,7 +251,7 @@ fn monitor_binary_reads_a_pseudo_terminal() {
     );
     assert!(out.contains("corrupt run: CRC mismatch"), "{out}");
     let t =
-        slipguard_host::recording::parse_recording(&std::fs::read_to_string(&rec).unwrap(), &rec)
+        slipguard_data::recording::parse_recording(&std::fs::read_to_string(&rec).unwrap(), &rec)
             .unwrap();
     assert_eq!(t.n_steps(), 30);
     assert_eq!(t.rate_hz, 16.7);

@@ -3,10 +3,10 @@
 //! stream of `slipguard_app::replay::run` on the firmware's own copy of the trial.
 use std::process::Command;
 
+use slipguard::replay::{decode_stream, golden_model_path, load_blob};
 use slipguard_app::profile::Profile;
 use slipguard_app::replay::{self as fw, CHEEZ_TRIAL, cheez_script};
 use slipguard_core::protocol::{Message, ReplyBody};
-use slipguard_host::replay::{decode_stream, golden_model_path, load_blob};
 
 fn root() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..")

@@ -17,9 +17,9 @@ use slipguard_core::float::FloatModel;
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::quantize::{CELL_HEADROOM, DEFAULT_CELL_FRAC_BITS, cell_bits_for};
 use slipguard_core::sample::InputScale;
-use slipguard_host::labels::{self, ChannelSequence, LabelConfig};
-use slipguard_host::metrics::{EvalSequence, EventConfig, Metrics, evaluate};
-use slipguard_host::trial::{Outcome, Stability};
+use slipguard_data::labels::{self, ChannelSequence, LabelConfig};
+use slipguard_data::metrics::{EvalSequence, EventConfig, Metrics, evaluate};
+use slipguard_data::trial::{Outcome, Stability};
 
 use crate::error::{ExportError, Result};
 
@@ -70,7 +70,7 @@ pub fn load_data(
 ) -> Result<DataSet> {
     let cfg = LabelConfig::default();
     let pb = bar(0, "loading", quiet);
-    let trials = slipguard_host::load_path(path, &cfg, |done, total| {
+    let trials = slipguard_data::load_path(path, &cfg, |done, total| {
         pb.set_length(total as u64);
         pb.set_position(done as u64);
     })

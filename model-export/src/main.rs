@@ -17,7 +17,7 @@ use slipguard_export::write::{atomic_write, rust_snippet};
 const EXAMPLES: &str = "\
 Examples, one per input format:
   # our trainer / any PyTorch nn.LSTM + nn.Linear state_dict saved as safetensors (settings in its metadata)
-  slipguard-export export runs/c.safetensors --data shared/data/eagle-shoal -o model.bin --rust-snippet model_blob.rs
+  slipguard-export export runs/c.safetensors --data data/eagle-shoal -o model.bin --rust-snippet model_blob.rs
 
   # ONNX from torch.onnx.export (settings from a JSON file and options)
   slipguard-export export slip.onnx --settings slip.settings.json --variant c --data rec/ -o model.bin
@@ -29,7 +29,7 @@ Examples, one per input format:
   slipguard-export export slip.weights.h5 --variant c --fit-norm --data rec/ -o model.bin
 
   slipguard-export inspect model.bin
-  slipguard-export verify model.bin --float runs/c.safetensors --data shared/data/eagle-shoal
+  slipguard-export verify model.bin --float runs/c.safetensors --data data/eagle-shoal
 
 Exit codes: 0 ok, 2 usage, 3 I/O, 4 unreadable/truncated file, 5 missing or misnamed tensor,
 6 wrong shape, 7 NaN/Inf weight, 8 unsupported construct, 9 over the firmware's bounds,
@@ -462,15 +462,37 @@ fn run_verify(a: VerifyArgs) -> Result<()> {
     Ok(())
 }
 
+/// The board's serial port (the `upload` feature's serial stack).
+#[cfg(feature = "upload")]
+fn open_port(
+    port: &str,
+    baud: u32,
+) -> Result<Box<dyn serialport::SerialPort>, slipguard_export::upload::UploadError> {
+    use slipguard_export::upload::UploadError;
+    serialport::new(port, baud)
+        .timeout(std::time::Duration::from_millis(20))
+        .open()
+        .map_err(|e| UploadError::Io(std::io::Error::other(format!("{port}: {e}"))))
+}
+
+/// Without the `upload` feature there is no serial stack: say how to get one.
+#[cfg(not(feature = "upload"))]
+fn open_port(
+    _port: &str,
+    _baud: u32,
+) -> Result<std::fs::File, slipguard_export::upload::UploadError> {
+    Err(slipguard_export::upload::UploadError::Io(std::io::Error::other(
+        "this slipguard-export was built without serial support: rebuild it with \
+         `--features upload` (e.g. `cargo run --release -p slipguard-export --features upload -- upload ...`)",
+    )))
+}
+
 fn run_upload(a: UploadArgs) -> ExitCode {
     use slipguard_export::upload::{Link, Options, UploadError};
     let run = || -> Result<slipguard_export::upload::Uploaded, UploadError> {
         let blob = std::fs::read(&a.blob)
             .map_err(|e| UploadError::Blob(format!("reading {}: {e}", a.blob.display())))?;
-        let port = serialport::new(&a.port, a.baud)
-            .timeout(std::time::Duration::from_millis(20))
-            .open()
-            .map_err(|e| UploadError::Io(std::io::Error::other(format!("{}: {e}", a.port))))?;
+        let port = open_port(&a.port, a.baud)?;
         let mut link = Link::new(port);
         let bar = indicatif::ProgressBar::new(blob.len() as u64);
         let opt = Options {

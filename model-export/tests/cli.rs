@@ -21,7 +21,7 @@ fn tmp(test: &str) -> PathBuf {
 }
 
 fn data_dir() -> PathBuf {
-    slipguard_host::eagle::default_data_dir()
+    slipguard_data::eagle::default_data_dir()
 }
 
 fn run(args: &[&str]) -> Output {

@@ -4,8 +4,8 @@
 //! flags on the host core as the float model within the quantizer's documented agreement.
 use slipguard_core::blob::AlignedBlob;
 use slipguard_core::model::{ChannelState, Model};
+use slipguard_data::eagle::{default_data_dir, read_tactile_csv};
 use slipguard_export::pipeline::{ExportOptions, ModelSource, export};
-use slipguard_host::eagle::default_data_dir;
 
 #[test]
 fn exporter_reproduces_the_shipped_hand_force_blob() {
@@ -43,14 +43,10 @@ fn exporter_reproduces_the_shipped_hand_force_blob() {
     let blob = AlignedBlob::new(&shipped);
     let model = Model::from_bytes(blob.as_bytes()).expect("shipped blob parses");
     let th = model.config().threshold_q15 as f32 / 32768.0;
-    let csv =
-        std::fs::read_to_string(default_data_dir().join("trials/Cheez_100_814_top_3/tactile.csv"))
+    let (_, channels) =
+        read_tactile_csv(&default_data_dir().join("trials/Cheez_100_814_top_3/tactile.csv"))
             .expect("trial Cheez_100_814_top_3");
-    let c4: Vec<f32> = csv
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').nth(4).unwrap().trim().parse().unwrap())
-        .collect();
+    let c4 = &channels[4];
     let mut qs = ChannelState::new();
     let mut fs = out.model.new_channel();
     let (mut decisive, mut disagree) = (0, 0);

@@ -78,7 +78,7 @@ fn hex(bytes: &[u8]) -> String {
 fn golden_bytes_of_a_small_blob() {
     let (config, tensors) = small();
     let bytes = write_blob(&config, &tensors);
-    if std::env::var_os("SLIPGUARD_BLESS").is_some() {
+    if common::blessing() {
         std::fs::write(GOLDEN, hex(&bytes)).unwrap();
     }
     let want = std::fs::read_to_string(GOLDEN).expect("golden file (SLIPGUARD_BLESS=1 writes it)");

@@ -37,7 +37,7 @@ fn expected(model: &Model<'_>, input: &[i32]) -> Vec<u8> {
 #[test]
 fn host_core_reproduces_the_golden_vectors() {
     let dir = std::path::Path::new(DIR);
-    if std::env::var_os("SLIPGUARD_BLESS").is_some() {
+    if common::blessing() {
         std::fs::create_dir_all(dir).unwrap();
         let float = common::random_model(Variant::ForceStft, 128, false, 2024);
         let calib: Vec<Vec<f32>> = (0..3).map(|i| common::smooth_force(77 + i, 400)).collect();

@@ -61,8 +61,9 @@ fn paper_variant_c_hidden_128_over_2000_steps() {
         "variant (c), H=128, 2000 steps: max|h_q-h_f| = {:.5}, max|p_q-p_f| = {:.5}, flag disagreements {} of {} steps >= 0.02 from the threshold",
         a.max_dh, a.max_dp, a.flag_disagreements, a.compared_flags
     );
-    assert!(a.max_dh <= 0.02, "h error {}", a.max_dh);
-    assert!(a.max_dp <= 0.01, "p error {}", a.max_dp);
+    // About twice the measured 0.0020 and 0.00036.
+    assert!(a.max_dh <= 0.004, "h error {}", a.max_dh);
+    assert!(a.max_dp <= 0.0008, "p error {}", a.max_dp);
     assert_eq!(a.flag_disagreements, 0);
     assert!(a.compared_flags > 0);
 }
@@ -80,9 +81,12 @@ fn every_variant_with_and_without_force_difference() {
                 a.flag_disagreements,
                 a.compared_flags
             );
+            // About twice the largest measured over the eight cases (|dh| 0.0074, |dp| 0.0008).
             assert!(
-                a.max_dh <= 0.02 && a.max_dp <= 0.01 && a.flag_disagreements == 0,
-                "{v:?} diff={diff}"
+                a.max_dh <= 0.015 && a.max_dp <= 0.0016 && a.flag_disagreements == 0,
+                "{v:?} diff={diff}: |dh| {}, |dp| {}",
+                a.max_dh,
+                a.max_dp
             );
         }
     }

@@ -96,10 +96,12 @@ fn float_reference_matches_pytorch() {
         println!(
             "{name:>10}: max |Δh| {err_h:.2e}, |Δc| {err_c:.2e}, |Δlogit| {err_l:.2e}, |Δp| {err_p:.2e}"
         );
-        // f32 arithmetic against PyTorch's float64 over 64 steps.
-        assert!(
-            err_h < 1e-5 && err_c < 1e-5 && err_l < 1e-5 && err_p < 1e-5,
-            "{name}"
-        );
+        // f32 arithmetic against PyTorch's float64 over 64 steps. Bounds about twice the
+        // largest measured over the four cases (|Δh| 1.13e-7, |Δc| 1.94e-7, |Δlogit| 4.3e-8,
+        // |Δp| 6.7e-8).
+        assert!(err_h < 2.5e-7, "{name}: |Δh| {err_h:.2e}");
+        assert!(err_c < 4e-7, "{name}: |Δc| {err_c:.2e}");
+        assert!(err_l < 1e-7, "{name}: |Δlogit| {err_l:.2e}");
+        assert!(err_p < 1.5e-7, "{name}: |Δp| {err_p:.2e}");
     }
 }

@@ -5,13 +5,13 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::ValueEnum;
 use serde::Serialize;
-use slipguard_host::baselines::{
+use slipguard_data::labels::{LabelConfig, LabelStatus, label_annotated};
+use slipguard_data::metrics::EventConfig;
+use slipguard_data::{eagle, load_path};
+use slipguard_learn::baselines::{
     Classifier, CvResult, DEFAULT_FULL_SCALE_MN, FeatureSet, FoldPlan, PAPER_TABLE_I, PaperRow,
     ReportRow, SvmSettings, build_sequences, cross_validate, make_folds, trial_outcomes,
 };
-use slipguard_host::labels::{LabelConfig, LabelStatus, label_annotated};
-use slipguard_host::metrics::EventConfig;
-use slipguard_host::{eagle, load_path};
 
 use super::progress::bar;
 
@@ -40,7 +40,7 @@ pub enum Model {
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Dataset root, trial folder, recording or folder of recordings
-    /// (default: $SLIPGUARD_DATA or <repo>/../shared/data/eagle-shoal).
+    /// (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
     pub path: Option<PathBuf>,
     /// Feature set.
     #[arg(long, value_enum, default_value = "both")]

@@ -7,14 +7,14 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::Parser;
 use plotters::prelude::*;
-use slipguard_app::profile::Profile;
-use slipguard_core::model::Model;
-use slipguard_host::checkpoint::threshold_q15;
-use slipguard_host::closed_loop::{
+use slipguard::closed_loop::{
     ControllerConfig, FlagSource, Outcome, Scenario, Situation, min_grip_needed, run_trial,
     summarise,
 };
-use slipguard_host::replay::{default_models, load_blob, shipped_blobs};
+use slipguard::replay::{default_models, load_blob, shipped_blobs};
+use slipguard_app::profile::Profile;
+use slipguard_core::model::Model;
+use slipguard_learn::checkpoint::threshold_q15;
 
 #[derive(Debug, Parser)]
 pub struct Args {
@@ -305,7 +305,7 @@ fn plot(
             .margin(8)
             .x_label_area_size(30)
             .y_label_area_size(50)
-            .build_cartesian_2d(0f64..slipguard_host::closed_loop::DURATION_S, 0f64..ymax)
+            .build_cartesian_2d(0f64..slipguard::closed_loop::DURATION_S, 0f64..ymax)
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         chart
             .configure_mesh()
@@ -325,10 +325,7 @@ fn plot(
             .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], BLACK));
         chart
             .draw_series(DashedLineSeries::new(
-                [
-                    (0.0, min[k]),
-                    (slipguard_host::closed_loop::DURATION_S, min[k]),
-                ],
+                [(0.0, min[k]), (slipguard::closed_loop::DURATION_S, min[k])],
                 6,
                 4,
                 RGBColor(128, 128, 128).stroke_width(1),

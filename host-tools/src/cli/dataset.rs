@@ -3,8 +3,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Subcommand;
-use slipguard_host::labels::LabelConfig;
-use slipguard_host::{Outcome, eagle, load_path};
+use slipguard_data::labels::LabelConfig;
+use slipguard_data::{Outcome, eagle, load_path};
 
 use super::progress::bar;
 
@@ -13,7 +13,7 @@ pub enum DatasetCommand {
     /// Summarise every trial: size, rate, unit, marks, outcome, drop step, contact channels.
     Info {
         /// Dataset root, trial folder, recording file or folder of recordings
-        /// (default: $SLIPGUARD_DATA or <repo>/../shared/data/eagle-shoal).
+        /// (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
         path: Option<PathBuf>,
     },
 }

@@ -6,18 +6,19 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
+use slipguard::plot::plot_prediction;
 use slipguard_core::blob::AlignedBlob;
 use slipguard_core::model::Model;
-use slipguard_host::evaluation::{
-    Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, plot_prediction, quant_p_q15,
-    row_markdown, sim_force_sequences, sim_suction_sequences,
+use slipguard_learn::evaluation::{
+    Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, quant_p_q15, row_markdown,
+    sim_force_sequences, sim_suction_sequences,
 };
 
 use super::train::load_real;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Real data (default: $SLIPGUARD_DATA or <repo>/../shared/data/eagle-shoal).
+    /// Real data (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// Folder with `hand-force/` and `suction/` (default: <repo>/models).

@@ -3,12 +3,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use slipguard::plot::plot_prediction;
 use slipguard_core::blob::InputUnit;
 use slipguard_core::decision::DecisionConfig;
-use slipguard_host::checkpoint::{self, Checkpoint, threshold_q15};
-use slipguard_host::evaluation::{
-    Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, plot_prediction, probabilities,
-    quantize_model, row_markdown, sim_force_sequences, sim_suction_sequences,
+use slipguard_learn::checkpoint::{self, Checkpoint, threshold_q15};
+use slipguard_learn::evaluation::{
+    Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, probabilities, quantize_model,
+    row_markdown, sim_force_sequences, sim_suction_sequences,
 };
 
 use super::train::load_real;
@@ -19,7 +20,7 @@ pub struct Args {
     /// cross-validation folders (fold*.safetensors) or folders of either.
     #[arg(required = true)]
     pub models: Vec<PathBuf>,
-    /// Real data (default: $SLIPGUARD_DATA or <repo>/../shared/data/eagle-shoal).
+    /// Real data (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// Skip the real trials.

@@ -2,15 +2,16 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use slipguard_host::labels::{LabelConfig, LabelStats, LabelStatus, detect_drop, label_annotated};
-use slipguard_host::{eagle, load_path, plot, recording};
+use slipguard::plot;
+use slipguard_data::labels::{LabelConfig, LabelStats, LabelStatus, detect_drop, label_annotated};
+use slipguard_data::{eagle, load_path, recording};
 
 use super::progress::bar;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Dataset root, trial folder, recording or folder of recordings
-    /// (default: $SLIPGUARD_DATA or <repo>/../shared/data/eagle-shoal).
+    /// (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
     pub path: Option<PathBuf>,
     /// Print per-trial drop steps and the label balance.
     #[arg(long)]
@@ -87,7 +88,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     m(t.marks.open_start)
                 ),
                 m(d.first_dip
-                    .filter(|_| t.outcome != slipguard_host::Outcome::Success)),
+                    .filter(|_| t.outcome != slipguard_data::Outcome::Success)),
                 m(l.drop_step),
                 m(l.unstable_from),
                 l.n_stable(),

@@ -6,9 +6,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::{Parser, ValueEnum};
+use slipguard::monitor::{Event, Monitor};
 use slipguard_core::protocol::{self, Command, Frame, MAX_WIRE, Message};
-use slipguard_host::monitor::{Event, Monitor};
-use slipguard_host::recording::write_recording;
+use slipguard_data::recording::write_recording;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum View {

@@ -6,13 +6,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::{Parser, ValueEnum};
+use slipguard::replay::{self, Scheduled};
 use slipguard_app::profile::Profile;
 use slipguard_app::replay::OpenWire;
 use slipguard_core::protocol::{Command, Message};
-use slipguard_host::eagle::read_tactile_csv;
-use slipguard_host::labels::{LabelConfig, annotate};
-use slipguard_host::replay::{self, Scheduled};
-use slipguard_host::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
+use slipguard_data::eagle::read_tactile_csv;
+use slipguard_data::labels::{LabelConfig, annotate};
+use slipguard_data::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum ProfileArg {
@@ -105,8 +105,8 @@ struct Meta {
 /// Loads any of the accepted trial forms.
 pub fn load_trial(path: &Path, rate: f32) -> anyhow::Result<Trial> {
     let cfg = LabelConfig::default();
-    if path.is_dir() || slipguard_host::recording::is_recording(path) {
-        let mut v = slipguard_host::load_path(path, &cfg, |_, _| {})?;
+    if path.is_dir() || slipguard_data::recording::is_recording(path) {
+        let mut v = slipguard_data::load_path(path, &cfg, |_, _| {})?;
         if v.len() != 1 {
             bail!("{} holds {} trials; give one", path.display(), v.len());
         }

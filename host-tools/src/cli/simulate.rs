@@ -6,11 +6,13 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use clap::ValueEnum;
 use plotters::style::RGBColor;
-use slipguard_host::labels::LabelConfig;
-use slipguard_host::sim::force::{self, ForceSimConfig, Intent};
-use slipguard_host::sim::suction::{self, SuctionSimConfig};
-use slipguard_host::validate::{self, TrialStats};
-use slipguard_host::{Outcome, Trial, dsp, eagle, load_path, plot, recording};
+use slipguard::plot;
+use slipguard_data::labels::LabelConfig;
+use slipguard_data::{Outcome, Trial, eagle, load_path, recording};
+use slipguard_sim::dsp;
+use slipguard_sim::force::{self, ForceSimConfig, Intent};
+use slipguard_sim::suction::{self, SuctionSimConfig};
+use slipguard_sim::validate::{self, TrialStats};
 
 use super::progress::bar;
 
@@ -48,7 +50,7 @@ pub struct Args {
     /// Compare the force simulator with the real trials and write the report.
     #[arg(long)]
     pub validate: bool,
-    /// Real data for --validate (default: $SLIPGUARD_DATA or <repo>/../shared/data/eagle-shoal).
+    /// Real data for --validate (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// Folder for the report (`simulator-validation.md`) and its `img/` (default: <repo>/docs).

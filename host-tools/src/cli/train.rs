@@ -4,18 +4,18 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
+use slipguard::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
 use slipguard_core::blob::Variant;
 use slipguard_core::decision::DecisionConfig;
 use slipguard_core::float::FloatModel;
-use slipguard_host::checkpoint::{self, Checkpoint, threshold_q15};
-use slipguard_host::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
-use slipguard_host::evaluation::{
+use slipguard_data::labels::{ChannelSequence, LabelConfig};
+use slipguard_data::{eagle, load_path};
+use slipguard_learn::checkpoint::{self, Checkpoint, threshold_q15};
+use slipguard_learn::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
 };
-use slipguard_host::labels::{ChannelSequence, LabelConfig};
-use slipguard_host::train::{TrainConfig, init_model, split_by_trial, train};
-use slipguard_host::{eagle, load_path};
+use slipguard_learn::train::{TrainConfig, init_model, split_by_trial, train};
 
 use super::progress::bar;
 
@@ -29,7 +29,7 @@ pub enum Sensor {
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Real data (default: $SLIPGUARD_DATA or <repo>/../shared/data/eagle-shoal).
+    /// Real data (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
     pub path: Option<PathBuf>,
     /// Output folder (checkpoints, blobs, logs).
     #[arg(long)]
@@ -83,7 +83,7 @@ pub struct Args {
     #[arg(long, default_value_t = 11)]
     pub sim_seed: u64,
     /// Simulated closed-loop trials (the four DoraHand situations, labelled with the true slip
-    /// state, `slipguard_host::closed_loop::training_sequences`) added to the pre-training.
+    /// state, `slipguard::closed_loop::training_sequences`) added to the pre-training.
     #[arg(long, default_value_t = 0)]
     pub closed_loop_pretrain: usize,
     /// Simulated closed-loop trials mixed into the (fine-)tuning set (split by trial for early
@@ -173,7 +173,7 @@ pub fn load_real(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Sequence>)
     anyhow::ensure!(
         path.exists(),
         "data folder {} not found: set SLIPGUARD_DATA or pass the eagle-shoal folder \
-         (the shared trials are in /work/shared/data/eagle-shoal)",
+         (the repository ships the trials in data/eagle-shoal)",
         path.display()
     );
     let cfg = LabelConfig::default();
@@ -515,7 +515,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 /// The --closed-loop-policy blob, checked: a blob that does not parse would only send fault
 /// frames and one at another rate would see other signals, either giving useless data.
 fn policy_blob(path: &Path, rate_mhz: u32) -> anyhow::Result<slipguard_core::blob::AlignedBlob> {
-    let blob = slipguard_host::replay::load_blob(path)?;
+    let blob = slipguard::replay::load_blob(path)?;
     let model = slipguard_core::model::Model::from_bytes(blob.as_bytes())
         .map_err(|e| anyhow::anyhow!("--closed-loop-policy {}: {e}", path.display()))?;
     let got = model.config().sample_rate_mhz;

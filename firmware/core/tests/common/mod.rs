@@ -79,3 +79,14 @@ pub fn random_model(variant: Variant, hidden: u16, force_diff: bool, seed: u64) 
     m.fit_normalisation(&refs);
     m
 }
+
+/// Whether this run re-writes the golden fixtures (`SLIPGUARD_BLESS` set). Refused under CI
+/// (`CI` set): CI checks the committed fixtures, it never re-blesses them.
+pub fn blessing() -> bool {
+    let bless = std::env::var_os("SLIPGUARD_BLESS").is_some();
+    assert!(
+        !(bless && std::env::var_os("CI").is_some()),
+        "SLIPGUARD_BLESS is set under CI: re-bless fixtures locally and commit them, never in CI"
+    );
+    bless
+}

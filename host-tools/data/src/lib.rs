@@ -1,0 +1,69 @@
+//! slipguard grasp data: the trial type every tool reads ([`trial::Trial`]), our
+//! recording format ([`recording`]), the eagle-shoal loader ([`eagle`]), the paper's
+//! labels ([`labels`]) and the evaluation metrics ([`metrics`]). No ML, plotting or
+//! serial dependency: the exporter stands on this crate.
+//!
+//! Errors are [`error::DataError`].
+
+pub mod eagle;
+pub mod error;
+pub mod labels;
+pub mod metrics;
+pub mod recording;
+pub mod trial;
+
+mod csvtext;
+
+pub use error::{DataError, Result};
+pub use trial::{Outcome, Phase, PhaseMarks, SensorKind, Stability, Trial, Unit};
+
+use std::path::Path;
+
+/// Load trials from `path`: a recording file (`.csv` starting with the
+/// recording magic line), a folder of recordings, or an eagle-shoal layout
+/// (dataset root, `trials/` folder or one trial folder). Trials are annotated
+/// with `cfg`; `progress(done, total)` is called as they load.
+pub fn load_path(
+    path: &Path,
+    cfg: &labels::LabelConfig,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<Trial>> {
+    if path.is_file() {
+        let t = recording::read_recording(path, cfg)?;
+        progress(1, 1);
+        return Ok(vec![t]);
+    }
+    if !path.exists() {
+        return Err(DataError::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or folder"),
+        ));
+    }
+    match eagle::trial_dirs(path) {
+        Ok(_) => eagle::load_eagle_dataset(path, cfg, progress),
+        Err(DataError::NoTrials { .. }) => {
+            let rd = std::fs::read_dir(path).map_err(|e| DataError::io(path, e))?;
+            let mut files: Vec<_> = rd
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|e| e == "csv") && recording::is_recording(p))
+                .collect();
+            files.sort();
+            if files.is_empty() {
+                return Err(DataError::NoTrials {
+                    path: path.to_path_buf(),
+                });
+            }
+            let total = files.len();
+            files
+                .iter()
+                .enumerate()
+                .map(|(i, f)| {
+                    let t = recording::read_recording(f, cfg);
+                    progress(i + 1, total);
+                    t
+                })
+                .collect()
+        }
+        Err(e) => Err(e),
+    }
+}

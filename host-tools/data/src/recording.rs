@@ -1,0 +1,483 @@
+//! slipguard's own recording format (CSV with a metadata preamble), version 1.
+//! The byte-exact description with an example is in docs/data-format.md.
+//!
+//! ```text
+//! # slipguard-recording v1
+//! # id: sim-force-0000
+//! # sensor: force
+//! # unit: mN
+//! # rate_hz: 16.7
+//! # outcome: failure
+//! # grasp_start: 2
+//! # lift_start: 3
+//! # drop_step: 4
+//! time_s,c0,c1,phase,label
+//! 0.000000,0,0,pre,0
+//! ...
+//! ```
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
+
+use crate::csvtext::{
+    check_width, from_line, lines, parse_error, parse_number, read_text, records, strip_bom,
+};
+use crate::error::{DataError, Result};
+use crate::labels::{LabelConfig, annotate};
+use crate::trial::{Outcome, Phase, PhaseMarks, SensorKind, Stability, Trial, Unit};
+
+/// First line of every recording.
+pub const MAGIC: &str = "# slipguard-recording v1";
+
+const KNOWN_KEYS: [&str; 11] = [
+    "id",
+    "sensor",
+    "unit",
+    "rate_hz",
+    "outcome",
+    "grasp_start",
+    "lift_start",
+    "open_start",
+    "drop_step",
+    "slip_onset_step",
+    "source",
+];
+
+/// Is this file a slipguard recording (starts with [`MAGIC`])?
+pub fn is_recording(path: &Path) -> bool {
+    use std::io::Read;
+    let mut buf = [0u8; 24];
+    std::fs::File::open(path)
+        .and_then(|mut f| f.read_exact(&mut buf))
+        .map(|_| &buf[..] == MAGIC.as_bytes())
+        .unwrap_or(false)
+}
+
+/// Format a sample: integers without a decimal point, else the shortest
+/// representation that reads back to the same f32.
+fn fmt_value(v: f32) -> String {
+    if v.fract() == 0.0 && v.abs() < 1e9 {
+        format!("{}", v as i64)
+    } else {
+        format!("{v}")
+    }
+}
+
+/// Render a trial in the recording format (LF line endings, final newline).
+pub fn to_string(trial: &Trial) -> String {
+    let mut s = String::new();
+    s.push_str(MAGIC);
+    s.push('\n');
+    let one_line = |v: &str| v.replace(['\n', '\r'], " ");
+    let _ = writeln!(s, "# id: {}", one_line(&trial.id));
+    let _ = writeln!(s, "# sensor: {}", trial.sensor);
+    let _ = writeln!(s, "# unit: {}", trial.unit);
+    let _ = writeln!(s, "# rate_hz: {}", trial.rate_hz);
+    let _ = writeln!(s, "# outcome: {}", trial.outcome);
+    let marks = [
+        ("grasp_start", trial.marks.grasp_start),
+        ("lift_start", trial.marks.lift_start),
+        ("open_start", trial.marks.open_start),
+        ("drop_step", trial.drop_step),
+        ("slip_onset_step", trial.slip_onset_step),
+    ];
+    for (k, v) in marks {
+        if let Some(v) = v {
+            let _ = writeln!(s, "# {k}: {v}");
+        }
+    }
+    if !trial.source.is_empty() {
+        let _ = writeln!(s, "# source: {}", one_line(&trial.source));
+    }
+    for (k, v) in &trial.extra {
+        let _ = writeln!(s, "# {k}: {}", one_line(v));
+    }
+    let has_phase = trial.marks != PhaseMarks::default();
+    s.push_str("time_s");
+    for n in &trial.channel_names {
+        s.push(',');
+        s.push_str(n);
+    }
+    if has_phase {
+        s.push_str(",phase");
+    }
+    if trial.step_labels.is_some() {
+        s.push_str(",label");
+    }
+    s.push('\n');
+    for t in 0..trial.n_steps() {
+        let _ = write!(s, "{:.6}", trial.time_s(t));
+        for c in &trial.samples {
+            s.push(',');
+            s.push_str(&fmt_value(c[t]));
+        }
+        if has_phase {
+            s.push(',');
+            s.push_str(trial.marks.phase_at(t).name());
+        }
+        if let Some(l) = &trial.step_labels {
+            s.push(',');
+            if let Some(l) = l[t] {
+                let _ = write!(s, "{}", l.code());
+            }
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// Write a trial to `path` in the recording format.
+pub fn write_recording(trial: &Trial, path: &Path) -> Result<()> {
+    trial.validate().map_err(|message| DataError::Shape {
+        path: path.to_path_buf(),
+        message,
+    })?;
+    let mut f = std::fs::File::create(path).map_err(|e| DataError::io(path, e))?;
+    f.write_all(to_string(trial).as_bytes())
+        .map_err(|e| DataError::io(path, e))
+}
+
+/// Read a recording and annotate it (contact flags; drop step if not stated and
+/// the outcome is not success).
+pub fn read_recording(path: &Path, cfg: &LabelConfig) -> Result<Trial> {
+    let text = read_text(path)?;
+    let mut trial = parse_recording(&text, path)?;
+    annotate(&mut trial, cfg);
+    Ok(trial)
+}
+
+/// Parse recording text without annotating (`path` is only used in errors).
+pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
+    let text = strip_bom(text);
+    let mut it = lines(text).peekable();
+    let first = it
+        .next()
+        .ok_or_else(|| parse_error(path, 1, None, None, "empty file"))?;
+    if first.text != MAGIC {
+        return Err(parse_error(
+            path,
+            1,
+            None,
+            None,
+            format!("first line must be `{MAGIC}`"),
+        ));
+    }
+    // Metadata.
+    let mut meta: Vec<(String, String, usize)> = Vec::new();
+    while let Some(l) = it.peek() {
+        if !l.text.starts_with('#') {
+            break;
+        }
+        let l = it.next().expect("peeked");
+        let body = l.text[1..].trim_start();
+        let Some((k, v)) = body.split_once(':') else {
+            return Err(parse_error(
+                path,
+                l.number,
+                None,
+                None,
+                "metadata line must be `# key: value`",
+            ));
+        };
+        let k = k.trim();
+        if k.is_empty()
+            || !k
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+        {
+            return Err(parse_error(
+                path,
+                l.number,
+                None,
+                None,
+                format!("metadata key `{k}` must be lower-case letters, digits and `_`"),
+            ));
+        }
+        if meta.iter().any(|(mk, _, _)| mk == k) {
+            return Err(parse_error(
+                path,
+                l.number,
+                None,
+                None,
+                format!("metadata key `{k}` given twice"),
+            ));
+        }
+        meta.push((k.to_string(), v.trim().to_string(), l.number));
+    }
+    let get = |k: &str| meta.iter().find(|(mk, _, _)| mk == k);
+    let meta_step = |k: &str| -> Result<Option<usize>> {
+        match get(k) {
+            None => Ok(None),
+            Some((_, v, line)) => v.parse::<usize>().map(Some).map_err(|_| {
+                parse_error(
+                    path,
+                    *line,
+                    None,
+                    None,
+                    format!("`{k}` must be a step index (non-negative integer), not `{v}`"),
+                )
+            }),
+        }
+    };
+    let rate_hz = match get("rate_hz") {
+        None => {
+            return Err(DataError::MissingMetadata {
+                path: path.to_path_buf(),
+                key: "rate_hz".into(),
+            });
+        }
+        Some((_, v, line)) => match v.parse::<f32>() {
+            Ok(r) if r.is_finite() && r > 0.0 => r,
+            _ => {
+                return Err(parse_error(
+                    path,
+                    *line,
+                    None,
+                    None,
+                    format!("rate_hz must be a positive number, not `{v}`"),
+                ));
+            }
+        },
+    };
+    let unit: Unit = match get("unit") {
+        None => {
+            return Err(DataError::MissingMetadata {
+                path: path.to_path_buf(),
+                key: "unit".into(),
+            });
+        }
+        Some((_, v, _)) => v.parse().expect("infallible"),
+    };
+    let outcome = match get("outcome") {
+        None => Outcome::Unknown,
+        Some((_, v, line)) => v
+            .parse::<Outcome>()
+            .map_err(|m| parse_error(path, *line, None, None, m))?,
+    };
+
+    // Header and rows: the CSV body after the preamble.
+    let body_line = meta.len() + 2;
+    let mut body = records(path, from_line(text, body_line), body_line)?.into_iter();
+    let header = body
+        .next()
+        .ok_or_else(|| parse_error(path, body_line, None, None, "missing header line"))?;
+    let cols: Vec<&str> = header.fields.iter().map(String::as_str).collect();
+    if cols[0] != "time_s" {
+        return Err(DataError::MissingColumn {
+            path: path.to_path_buf(),
+            line: header.number,
+            column: "time_s (first column)".into(),
+        });
+    }
+    let mut phase_col = None;
+    let mut label_col = None;
+    let mut channel_names = Vec::new();
+    for (i, &c) in cols.iter().enumerate().skip(1) {
+        let err = |m: String| parse_error(path, header.number, Some(i + 1), Some(c), m);
+        match c {
+            "phase" => {
+                if phase_col.is_some() || label_col.is_some() {
+                    return Err(err(
+                        "`phase` must come once, after the channels and before `label`".into(),
+                    ));
+                }
+                phase_col = Some(i);
+            }
+            "label" => {
+                if label_col.is_some() {
+                    return Err(err("`label` given twice".into()));
+                }
+                label_col = Some(i);
+            }
+            "" => return Err(err("empty column name".into())),
+            "time_s" => return Err(err("`time_s` must be the first column only".into())),
+            _ => {
+                if phase_col.is_some() || label_col.is_some() {
+                    return Err(err(
+                        "channel columns must come before `phase` and `label`".into()
+                    ));
+                }
+                if channel_names.iter().any(|n| n == c) {
+                    return Err(err(format!("channel `{c}` given twice")));
+                }
+                channel_names.push(c.to_string());
+            }
+        }
+    }
+    if channel_names.is_empty() {
+        return Err(DataError::MissingColumn {
+            path: path.to_path_buf(),
+            line: header.number,
+            column: "at least one channel".into(),
+        });
+    }
+
+    // Rows.
+    let nch = channel_names.len();
+    let mut samples = vec![Vec::new(); nch];
+    let mut times: Vec<(f64, usize)> = Vec::new();
+    let mut phases: Vec<Phase> = Vec::new();
+    let mut labels: Vec<Option<Stability>> = Vec::new();
+    for r in body {
+        let (line, f) = (r.number, r.fields);
+        if f[0].starts_with('#') {
+            return Err(parse_error(
+                path,
+                line,
+                Some(1),
+                None,
+                "metadata lines (`#`) are only allowed before the header",
+            ));
+        }
+        check_width(path, line, &f, cols.len())?;
+        let t = parse_number(path, line, 1, "time_s", &f[0])?;
+        let t: f64 = f[0].parse().unwrap_or(t as f64);
+        if let Some(&(prev, _)) = times.last()
+            && t <= prev
+        {
+            return Err(parse_error(
+                path,
+                line,
+                Some(1),
+                Some("time_s"),
+                format!("time {t} is not after the previous row's {prev}"),
+            ));
+        }
+        times.push((t, line));
+        for (c, samples_c) in samples.iter_mut().enumerate() {
+            samples_c.push(parse_number(
+                path,
+                line,
+                c + 2,
+                &channel_names[c],
+                &f[c + 1],
+            )?);
+        }
+        if let Some(pc) = phase_col {
+            let p: Phase = f[pc]
+                .parse()
+                .map_err(|m: String| parse_error(path, line, Some(pc + 1), Some("phase"), m))?;
+            if let Some(&prev) = phases.last()
+                && (p as u8) < (prev as u8)
+            {
+                return Err(parse_error(
+                    path,
+                    line,
+                    Some(pc + 1),
+                    Some("phase"),
+                    format!("phase goes back from {} to {}", prev.name(), p.name()),
+                ));
+            }
+            phases.push(p);
+        }
+        if let Some(lc) = label_col {
+            let v = f[lc].trim();
+            labels.push(match v {
+                "" => None,
+                "0" => Some(Stability::Stable),
+                "1" => Some(Stability::Unstable),
+                _ => {
+                    return Err(parse_error(
+                        path,
+                        line,
+                        Some(lc + 1),
+                        Some("label"),
+                        format!("label must be 0 (stable), 1 (unstable) or empty, not `{v}`"),
+                    ));
+                }
+            });
+        }
+    }
+    let n = times.len();
+    if n == 0 {
+        return Err(parse_error(
+            path,
+            header.number + 1,
+            None,
+            None,
+            "no data rows",
+        ));
+    }
+    // The stated rate must match the time column (mean step within 5 %).
+    if n >= 2 {
+        let mean_dt = (times[n - 1].0 - times[0].0) / (n - 1) as f64;
+        let want = 1.0 / rate_hz as f64;
+        if (mean_dt - want).abs() > 0.05 * want {
+            let line = get("rate_hz").map_or(1, |m| m.2);
+            return Err(parse_error(
+                path,
+                line,
+                None,
+                None,
+                format!(
+                    "rate_hz {rate_hz} does not match the time column (mean step {mean_dt:.6} s = {:.3} Hz)",
+                    1.0 / mean_dt
+                ),
+            ));
+        }
+    }
+
+    // Marks: from metadata and/or the phase column; they must agree.
+    let mut marks = PhaseMarks {
+        grasp_start: meta_step("grasp_start")?,
+        lift_start: meta_step("lift_start")?,
+        open_start: meta_step("open_start")?,
+    };
+    if !phases.is_empty() {
+        let first = |p: Phase| phases.iter().position(|&q| q as u8 >= p as u8);
+        let from_col = [
+            ("grasp_start", first(Phase::Grasp), &mut marks.grasp_start),
+            ("lift_start", first(Phase::Lift), &mut marks.lift_start),
+            ("open_start", first(Phase::Open), &mut marks.open_start),
+        ];
+        for (k, col, m) in from_col {
+            match (*m, col) {
+                (Some(a), Some(b)) if a != b => {
+                    let line = get(k).map_or(1, |g| g.2);
+                    return Err(parse_error(
+                        path,
+                        line,
+                        None,
+                        None,
+                        format!("`{k}: {a}` disagrees with the phase column (step {b})"),
+                    ));
+                }
+                (None, Some(b)) => *m = Some(b),
+                _ => {}
+            }
+        }
+    }
+    let id = get("id").map_or_else(
+        || {
+            path.file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        },
+        |m| m.1.clone(),
+    );
+    let mut trial = Trial::new(id, unit, rate_hz, samples);
+    trial.channel_names = channel_names;
+    if let Some((_, v, _)) = get("sensor") {
+        trial.sensor = v.parse::<SensorKind>().expect("infallible");
+    }
+    trial.marks = marks;
+    trial.outcome = outcome;
+    trial.drop_step = meta_step("drop_step")?;
+    trial.slip_onset_step = meta_step("slip_onset_step")?;
+    trial.source =
+        get("source").map_or_else(|| format!("recording {}", path.display()), |m| m.1.clone());
+    if label_col.is_some() {
+        trial.step_labels = Some(labels);
+    }
+    for (k, v, _) in &meta {
+        if !KNOWN_KEYS.contains(&k.as_str()) {
+            trial.extra.insert(k.clone(), v.clone());
+        }
+    }
+    trial.validate().map_err(|message| DataError::Shape {
+        path: path.to_path_buf(),
+        message,
+    })?;
+    Ok(trial)
+}

@@ -1,0 +1,358 @@
+//! Evaluation of float and quantized models on labelled channel sequences: data sets (real
+//! trials, simulated force and suction), cross-validation folds by trial and the decision sweep.
+//! Metrics come from [`slipguard_data::metrics`]; the Fig. 8 plots are the CLI's.
+
+use slipguard_core::blob::{AlignedBlob, InputUnit, ModelConfig, Variant};
+use slipguard_core::decision::{DecisionConfig, DecisionState};
+use slipguard_core::features::stft::StftConfig;
+use slipguard_core::float::FloatModel;
+use slipguard_core::model::{ChannelState, Model};
+use slipguard_core::quantize::quantize;
+
+use crate::error::Result;
+use slipguard_data::labels::{ChannelSequence, LabelConfig, channel_sequences, label_annotated};
+use slipguard_data::metrics::{EvalSequence, EventConfig, Metrics, evaluate};
+use slipguard_data::trial::{Outcome, Stability, Trial};
+use slipguard_sim::force::{ForceSimConfig, simulate_trial as sim_force};
+use slipguard_sim::suction::{SuctionSimConfig, simulate_trial as sim_suction};
+
+/// A labelled single-channel sequence with what the plots and reports need.
+#[derive(Debug, Clone)]
+pub struct Sequence {
+    pub cs: ChannelSequence,
+    /// Lift start relative to the sequence start.
+    pub lift: Option<usize>,
+    pub rate_hz: f32,
+}
+
+impl Sequence {
+    pub fn failure(&self) -> bool {
+        self.cs.outcome == Outcome::Failure
+    }
+}
+
+/// Labelled contact-channel sequences of annotated trials (`cfg` gives length and lead).
+pub fn sequences_of(trials: &[Trial], cfg: &LabelConfig) -> Vec<Sequence> {
+    let mut out = Vec::new();
+    for t in trials {
+        let l = label_annotated(t, cfg);
+        let lift = t.marks.lift_start.and_then(|s| s.checked_sub(l.seq_start));
+        for cs in channel_sequences(t, &l) {
+            out.push(Sequence {
+                cs,
+                lift,
+                rate_hz: t.rate_hz,
+            });
+        }
+    }
+    out
+}
+
+/// Simulated 16-pad force trials at `rate_hz` (trial `i` of `seed`), as sequences (labels with
+/// the paper's durations, [`LabelConfig::scaled_to`]).
+pub fn sim_force_sequences(
+    seed: u64,
+    count: usize,
+    failure_share: f64,
+    rate_hz: f32,
+) -> Vec<Sequence> {
+    let cfg = ForceSimConfig::at_rate(rate_hz as f64);
+    let trials: Vec<Trial> = (0..count)
+        .map(|i| sim_force(seed, i as u64, None, failure_share, &cfg))
+        .collect();
+    sequences_of(&trials, &LabelConfig::default().scaled_to(rate_hz))
+}
+
+/// Simulated suction trials at 71 Hz (4 cups), 160-step sequences from attach with the
+/// paper's 20-step lead (the paper's Table V set-up).
+pub fn sim_suction_sequences(seed: u64, count: usize, failure_share: f64) -> Vec<Sequence> {
+    let cfg = SuctionSimConfig::default();
+    let trials: Vec<Trial> = (0..count)
+        .map(|i| sim_suction(seed, i as u64, None, failure_share, &cfg).0)
+        .collect();
+    sequences_of(&trials, &LabelConfig::default())
+}
+
+/// Header settings of a hand-force model at `rate_mhz` (0…32,768 mN → Q1.15).
+pub fn force_config(
+    variant: Variant,
+    force_diff: bool,
+    hidden: u16,
+    name: &str,
+    rate_mhz: u32,
+) -> ModelConfig {
+    base_config(
+        variant,
+        force_diff,
+        hidden,
+        name,
+        rate_mhz,
+        InputUnit::MilliNewton,
+        0,
+        32_768,
+    )
+}
+
+/// Header settings of a suction model at 71 Hz (counts 6,400 ± 40,960 → Q1.15).
+pub fn suction_config(variant: Variant, force_diff: bool, hidden: u16, name: &str) -> ModelConfig {
+    base_config(
+        variant,
+        force_diff,
+        hidden,
+        name,
+        71_000,
+        InputUnit::Counts,
+        6_400,
+        40_960,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn base_config(
+    variant: Variant,
+    force_diff: bool,
+    hidden: u16,
+    name: &str,
+    rate_mhz: u32,
+    unit: InputUnit,
+    offset: i32,
+    full_scale: i32,
+) -> ModelConfig {
+    ModelConfig {
+        model_id: 0,
+        name: crate::checkpoint::name_bytes(name),
+        variant,
+        force_diff,
+        sample_rate_mhz: rate_mhz,
+        input_unit: unit,
+        input_offset: offset,
+        input_full_scale: full_scale,
+        stft: if variant.uses_bands() {
+            StftConfig::PAPER
+        } else {
+            StftConfig {
+                window_len: 0,
+                first_bin: 0,
+                n_bins: 0,
+                shape: slipguard_core::features::stft::WindowShape::Rectangular,
+            }
+        },
+        hidden: [
+            hidden,
+            if variant == Variant::DualLstm {
+                hidden
+            } else {
+                0
+            },
+        ],
+        cell_frac_bits: [0, 0],
+        threshold_q15: 16_384,
+        raise_after: 1,
+        clear_after: 1,
+    }
+}
+
+/// Quantizes a float model with the core's quantizer (cell range calibrated on `calib`).
+pub fn quantize_model(model: &FloatModel, calib: &[&[f32]]) -> Result<Vec<u8>> {
+    Ok(quantize(model, calib, None)?.0)
+}
+
+/// Per-step p(unstable) in Q0.15 of the float model (fresh state per sequence).
+pub fn float_p_q15(model: &FloatModel, samples: &[f32]) -> Vec<i16> {
+    let mut st = model.new_channel();
+    samples
+        .iter()
+        .map(|&x| {
+            let p = model.step(&mut st, x).p_unstable;
+            (p * 32768.0).round().min(32767.0) as i16
+        })
+        .collect()
+}
+
+/// Per-step p(unstable) in Q0.15 of the bit-exact quantized core.
+pub fn quant_p_q15(model: &Model<'_>, samples: &[f32]) -> Vec<i16> {
+    let mut st = ChannelState::new();
+    samples
+        .iter()
+        .map(|&x| model.step(&mut st, x.round() as i32).p_unstable_q15)
+        .collect()
+}
+
+/// Flags after threshold and hysteresis.
+pub fn decide(d: DecisionConfig, p: &[i16]) -> Vec<Stability> {
+    let mut s = DecisionState::default();
+    p.iter()
+        .map(|&p| {
+            if d.update(&mut s, p) {
+                Stability::Unstable
+            } else {
+                Stability::Stable
+            }
+        })
+        .collect()
+}
+
+/// Metrics of predictions (one per sequence) against the sequences' labels.
+pub fn metrics_of(seqs: &[&Sequence], preds: &[Vec<Stability>]) -> Metrics {
+    let ev: Vec<EvalSequence> = seqs
+        .iter()
+        .zip(preds)
+        .map(|(s, p)| {
+            EvalSequence::new(
+                &s.cs.labels,
+                p,
+                s.cs.drop_index,
+                s.failure(),
+                s.rate_hz as f64,
+            )
+        })
+        .collect();
+    evaluate(&ev, EventConfig::default())
+}
+
+/// Which implementation produced the predictions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    Float,
+    Quantized,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Float => "float",
+            Kind::Quantized => "quantized",
+        }
+    }
+}
+
+/// p(unstable) sequences of a model, float or quantized (`blob` = the quantized blob).
+pub fn probabilities(
+    model: &FloatModel,
+    blob: &[u8],
+    kind: Kind,
+    seqs: &[&Sequence],
+) -> Result<Vec<Vec<i16>>> {
+    Ok(match kind {
+        Kind::Float => seqs
+            .iter()
+            .map(|s| float_p_q15(model, &s.cs.samples))
+            .collect(),
+        Kind::Quantized => {
+            let aligned = AlignedBlob::new(blob);
+            let m = Model::from_bytes(aligned.as_bytes())?;
+            seqs.iter()
+                .map(|s| quant_p_q15(&m, &s.cs.samples))
+                .collect()
+        }
+    })
+}
+
+/// Cross-validation folds by trial: failure trials and success trials (sorted by id) are dealt
+/// round-robin into `k` folds, so every fold has failures. Returns trial ids per fold.
+pub fn cv_folds(seqs: &[Sequence], k: usize) -> Vec<Vec<String>> {
+    let mut fail: Vec<String> = Vec::new();
+    let mut succ: Vec<String> = Vec::new();
+    for s in seqs {
+        let v = if s.failure() { &mut fail } else { &mut succ };
+        if !v.contains(&s.cs.trial_id) {
+            v.push(s.cs.trial_id.clone());
+        }
+    }
+    fail.sort();
+    succ.sort();
+    let mut folds = vec![Vec::new(); k.max(1)];
+    for (i, id) in fail.into_iter().enumerate() {
+        folds[i % k.max(1)].push(id);
+    }
+    // Successes continue where the failures stopped so fold sizes stay even.
+    let off = folds.iter().map(Vec::len).sum::<usize>();
+    for (i, id) in succ.into_iter().enumerate() {
+        folds[(off + i) % k.max(1)].push(id);
+    }
+    folds
+}
+
+/// Score used to pick a decision rule on validation data: the smaller of the two margins over
+/// the paper's best figures (success 80.09 %, ahead-drop 84.63 %), plus a small share of their
+/// sum to break ties, minus a small penalty for the false-alarm rate (an alarm anywhere before
+/// the drop counts as "ahead", so a rule that fires in every sequence would otherwise win).
+pub fn goal_score(m: &Metrics) -> f64 {
+    let s = m.success_rate.unwrap_or(0.0);
+    let a = m.ahead_drop_rate.unwrap_or(0.0);
+    let fa = m.false_alarm_rate.unwrap_or(0.0);
+    (s - 0.8009).min(a - 0.8463) + 0.01 * (s + a) - 0.03 * fa
+}
+
+/// Chooses threshold and hysteresis on validation sequences (float p), maximising
+/// [`goal_score`]. Returns the rule and its metrics.
+/// `raise_after` is at least `min_raise`.
+pub fn tune_decision(
+    p: &[Vec<i16>],
+    seqs: &[&Sequence],
+    min_raise: u8,
+) -> (DecisionConfig, Metrics) {
+    let mut best: Option<(f64, DecisionConfig, Metrics)> = None;
+    for thr in [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8] {
+        for raise in [1u8, 2, 3, 4, 5]
+            .into_iter()
+            .filter(|&r| r >= min_raise.min(5))
+        {
+            for clear in [1u8, 3, 10] {
+                let d = DecisionConfig {
+                    threshold_q15: (thr * 32768.0) as i16,
+                    raise_after: raise,
+                    clear_after: clear,
+                };
+                let preds: Vec<_> = p.iter().map(|q| decide(d, q)).collect();
+                let m = metrics_of(seqs, &preds);
+                let sc = goal_score(&m);
+                if best.as_ref().is_none_or(|b| sc > b.0 + 1e-12) {
+                    best = Some((sc, d, m));
+                }
+            }
+        }
+    }
+    let (_, d, m) = best.expect("grid is not empty");
+    (d, m)
+}
+
+/// Writes the decision rule into a config.
+pub fn set_decision(c: &mut ModelConfig, d: DecisionConfig) {
+    c.threshold_q15 = d.threshold_q15.max(1) as u16;
+    c.raise_after = d.raise_after;
+    c.clear_after = d.clear_after;
+}
+
+/// One table row.
+#[derive(Debug, Clone)]
+pub struct Row {
+    pub model: String,
+    pub data: String,
+    pub kind: Kind,
+    pub metrics: Metrics,
+}
+
+/// Markdown header of [`row_markdown`].
+pub const TABLE_HEADER: &str = "| model | data | kind | seqs (fail) | success rate | ahead-drop | false alarms | lead median (ms) | event P / R |\n|---|---|---|---|---|---|---|---|---|";
+
+/// One markdown table row.
+pub fn row_markdown(r: &Row) -> String {
+    let pct = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{:.2}%", 100.0 * v));
+    let m = &r.metrics;
+    format!(
+        "| {} | {} | {} | {} ({}) | {} | {} | {} | {} | {} / {} |",
+        r.model,
+        r.data,
+        r.kind.name(),
+        m.success_sequences + m.failure_sequences,
+        m.failure_sequences,
+        pct(m.success_rate),
+        pct(m.ahead_drop_rate),
+        pct(m.false_alarm_rate),
+        m.lead_time
+            .map_or("n/a".into(), |l| format!("{:.0}", l.median)),
+        pct(m.event_precision),
+        pct(m.event_recall),
+    )
+}

@@ -1,0 +1,13 @@
+//! slipguard learning: the paper's LSTM variants trained with candle ([`train`]), float
+//! checkpoints in safetensors ([`checkpoint`]), the paper's Table I baselines
+//! ([`baselines`]) and the evaluation of float and quantized models ([`evaluation`]).
+//!
+//! Errors are [`error::LearnError`] (candle's and the data layer's wrapped).
+
+pub mod baselines;
+pub mod checkpoint;
+pub mod error;
+pub mod evaluation;
+pub mod train;
+
+pub use error::{LearnError, Result};
