@@ -481,10 +481,12 @@ fn open_port(
     _port: &str,
     _baud: u32,
 ) -> Result<std::fs::File, slipguard_export::upload::UploadError> {
-    Err(slipguard_export::upload::UploadError::Io(std::io::Error::other(
-        "this slipguard-export was built without serial support: rebuild it with \
+    Err(slipguard_export::upload::UploadError::Io(
+        std::io::Error::other(
+            "this slipguard-export was built without serial support: rebuild it with \
          `--features upload` (e.g. `cargo run --release -p slipguard-export --features upload -- upload ...`)",
-    )))
+        ),
+    ))
 }
 
 fn run_upload(a: UploadArgs) -> ExitCode {

@@ -233,6 +233,61 @@ pub fn detect_drop(trial: &Trial, cfg: &LabelConfig) -> DropDetection {
     out
 }
 
+/// Release search. The hold level is the median of the contact channels' summed deviation
+/// over the loaded steps (sum ≥ the contact threshold) of the first [`RELEASE_LEVEL_SECONDS`]
+/// after the lift start. The hand has let go at the first step, after the sum has reached
+/// the level's [`RELEASE_HIGH`] share, where it falls below [`RELEASE_GONE`] of the level and
+/// stays there for [`RELEASE_HOLD_SECONDS`]; the release starts right after the last step
+/// before that at or above [`RELEASE_HIGH`] of the level (the start of the final decline).
+/// On the 16 real successes with contact it lands 95–144 steps after the lift start, where
+/// the force curves show the hand opening (docs/labels.md).
+pub const RELEASE_GONE: f32 = 0.1;
+/// Share of the hold level the final decline starts from.
+pub const RELEASE_HIGH: f32 = 0.8;
+/// How long the contact sum must stay gone to call it a release, seconds (5 steps at 16.7 Hz).
+pub const RELEASE_HOLD_SECONDS: f32 = 0.3;
+/// Span after the lift start over which the hold level is measured, seconds (100 steps).
+pub const RELEASE_LEVEL_SECONDS: f32 = 6.0;
+
+/// Release start (see [`RELEASE_GONE`]): `None` without a lift mark, without contact or when
+/// the grip holds to the end of the trial.
+pub fn detect_release(trial: &Trial, cfg: &LabelConfig) -> Option<usize> {
+    let n = trial.n_steps();
+    let lift = trial.marks.lift_start?;
+    if lift >= n {
+        return None;
+    }
+    let g = trial.marks.grasp_start.unwrap_or(0).min(lift);
+    let level_end = (lift + (RELEASE_LEVEL_SECONDS * trial.rate_hz).round() as usize).min(n);
+    let thr = cfg.contact_threshold(&trial.unit);
+    let dev = deviations(trial);
+    let contact = contact_from_dev(&dev, g, level_end, thr, cfg.contact_min_run);
+    let channels: Vec<usize> = (0..contact.len()).filter(|&c| contact[c]).collect();
+    let sum: Vec<f32> = (0..n)
+        .map(|t| channels.iter().map(|&c| dev[c][t]).sum())
+        .collect();
+    let mut loaded: Vec<f32> = sum[lift..level_end]
+        .iter()
+        .copied()
+        .filter(|&x| x >= thr)
+        .collect();
+    if loaded.is_empty() {
+        return None;
+    }
+    loaded.sort_by(f32::total_cmp);
+    let level = loaded[loaded.len() / 2];
+    let (gone, high) = (RELEASE_GONE * level, RELEASE_HIGH * level);
+    let run = ((RELEASE_HOLD_SECONDS * trial.rate_hz).round() as usize).max(1);
+    let held = (lift..n).find(|&s| sum[s] >= high)?;
+    let let_go =
+        (held..n.saturating_sub(run - 1)).find(|&s| sum[s..s + run].iter().all(|&x| x < gone))?;
+    let decline = (held..let_go)
+        .rev()
+        .find(|&t| sum[t] >= high)
+        .unwrap_or(held);
+    Some(decline + 1)
+}
+
 /// Fill `trial.drop_step` (failures and unknown outcomes, if not already set)
 /// and `trial.contact` with the configured rules.
 ///

@@ -5,6 +5,7 @@
 //!
 //! Errors are [`error::DataError`].
 
+pub mod armed;
 pub mod eagle;
 pub mod error;
 pub mod labels;

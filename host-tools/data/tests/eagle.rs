@@ -105,3 +105,30 @@ fn cheez_dip_at_100_is_not_the_drop() {
     assert!(t.samples[9][143] > 20_000.0);
     assert!(!t.contact[9]);
 }
+
+/// The release rule (docs/labels.md) on the real successes: every success with a contact
+/// channel gets a release well after the lift window, where the force curves show the hand
+/// opening (116–146 steps after the lift start); the two without contact get none.
+#[test]
+fn release_is_found_on_every_success_with_contact() {
+    use slipguard_data::labels::detect_release;
+    let cfg = LabelConfig::default();
+    let trials = load_eagle_dataset(&data(), &cfg, |_, _| {}).expect("load");
+    let mut found = 0;
+    for t in trials.iter().filter(|t| t.outcome == Outcome::Success) {
+        let lift = t.marks.lift_start.unwrap();
+        let r = detect_release(t, &cfg);
+        eprintln!("{} lift {lift} release {r:?}", t.id);
+        if t.contact.iter().any(|&c| c) {
+            let r = r.unwrap_or_else(|| panic!("{}: no release found", t.id));
+            let after = r - lift;
+            assert!(
+                (90..=150).contains(&after),
+                "{}: release {after} steps after lift",
+                t.id
+            );
+            found += 1;
+        }
+    }
+    assert_eq!(found, 16);
+}

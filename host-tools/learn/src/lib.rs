@@ -8,6 +8,7 @@ pub mod baselines;
 pub mod checkpoint;
 pub mod error;
 pub mod evaluation;
+pub mod product;
 pub mod train;
 
 pub use error::{LearnError, Result};

@@ -1,0 +1,374 @@
+//! The bit-exact core over a whole trial as the firmware runs it: every channel through
+//! contact detection and, while in contact, the model (`Model::step_in_contact`), and the
+//! hand-level decision over the channels (`HandConfig`), from the grasp start (the firmware
+//! resets at the controller's grasp-start command) to the end of the trial. Then the grasp's
+//! armed window for [`crate::armed`].
+
+use slipguard_core::decision::{ContactConfig, DecisionState, HandConfig};
+use slipguard_core::model::{ChannelState, Model};
+
+use slipguard_data::armed::ArmedGrasp;
+use slipguard_data::labels::{LabelConfig, detect_release};
+use slipguard_data::trial::{Outcome, Trial};
+
+/// What the firmware's decision stage produced on every step of a trial.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HandRun {
+    /// First step run (the grasp start); steps before it have no contact and no flag.
+    pub start: usize,
+    /// Per step: the hand's p(unstable), Q0.15.
+    pub hand_p: Vec<i16>,
+    /// Per step: the hand flag.
+    pub hand_flag: Vec<bool>,
+    /// Per channel and step: p(unstable) while in contact, else `None`.
+    pub channel_p: Vec<Vec<Option<i16>>>,
+    /// Per channel and step: the channel's own flag (down without contact).
+    pub channel_flag: Vec<Vec<bool>>,
+}
+
+impl HandRun {
+    /// Channels that were in contact at some step.
+    pub fn contact_channels(&self) -> Vec<usize> {
+        (0..self.channel_p.len())
+            .filter(|&c| self.channel_p[c].iter().any(Option::is_some))
+            .collect()
+    }
+
+    /// The hand flag for other decision settings, from the stored hand p (the hand's p does
+    /// not depend on threshold or hysteresis): what an operating-curve sweep needs.
+    pub fn hand_flag_with(&self, hand: &HandConfig) -> Vec<bool> {
+        let mut s = DecisionState::default();
+        self.hand_p
+            .iter()
+            .enumerate()
+            .map(|(t, &p)| t >= self.start && hand.decision.update(&mut s, p))
+            .collect()
+    }
+}
+
+/// Runs `model` over every channel of `trial` from its grasp start (step 0 without a mark).
+/// Sample values are rounded to whole sensor units, as the firmware's front end delivers them.
+pub fn run_trial(
+    model: &Model<'_>,
+    trial: &Trial,
+    contact: &ContactConfig,
+    hand: &HandConfig,
+) -> HandRun {
+    let n = trial.n_steps();
+    let start = trial.marks.grasp_start.unwrap_or(0).min(n);
+    let nc = trial.n_channels();
+    let mut states = vec![ChannelState::new(); nc];
+    let mut run = HandRun {
+        start,
+        hand_p: vec![0; n],
+        hand_flag: vec![false; n],
+        channel_p: vec![vec![None; n]; nc],
+        channel_flag: vec![vec![false; n]; nc],
+    };
+    let mut hand_state = DecisionState::default();
+    let mut p_now = vec![None; nc];
+    for t in start..n {
+        for c in 0..nc {
+            let raw = trial.samples[c][t].round() as i32;
+            let out = model.step_in_contact(&mut states[c], contact, raw);
+            p_now[c] = out.step.map(|s| s.p_unstable_q15);
+            run.channel_p[c][t] = p_now[c];
+            run.channel_flag[c][t] = out.step.is_some_and(|s| s.unstable);
+        }
+        let h = hand.update(&mut hand_state, p_now.iter().copied());
+        run.hand_p[t] = h.p_unstable_q15;
+        run.hand_flag[t] = h.unstable;
+    }
+    run
+}
+
+/// Why a trial cannot be scored in its armed window.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum ArmedError {
+    /// The trial has no lift mark (the armed window starts at the lift command).
+    NoLiftMark {
+        /// Trial id.
+        trial: String,
+    },
+    /// A failure without a drop step (not labelled: `slipguard label` finds none).
+    NoDrop {
+        /// Trial id.
+        trial: String,
+    },
+    /// The outcome is unknown.
+    UnknownOutcome {
+        /// Trial id.
+        trial: String,
+    },
+}
+
+impl std::fmt::Display for ArmedError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ArmedError::NoLiftMark { trial } => write!(
+                f,
+                "{trial}: no lift mark (lift_start): the armed window starts at the lift command; \
+                 record with the lift command sent, or add `# lift_start: STEP` to the recording"
+            ),
+            ArmedError::NoDrop { trial } => {
+                write!(
+                    f,
+                    "{trial}: a failure with no drop found in its force (see docs/labels.md)"
+                )
+            }
+            ArmedError::UnknownOutcome { trial } => write!(
+                f,
+                "{trial}: outcome unknown: set `# outcome: success|failure` in the recording"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for ArmedError {}
+
+/// The armed window `[start, end)` of an annotated trial: lift start to the release start
+/// (success; the trial's end if the grip holds to it) or to the drop (failure). `Ok(None)`
+/// for a trial without contact (nothing a hand controller would act on).
+pub fn armed_window(
+    trial: &Trial,
+    cfg: &LabelConfig,
+) -> Result<Option<(usize, usize)>, ArmedError> {
+    let id = || trial.id.clone();
+    if !trial.contact.iter().any(|&c| c) {
+        return Ok(None);
+    }
+    let lift = trial
+        .marks
+        .lift_start
+        .ok_or_else(|| ArmedError::NoLiftMark { trial: id() })?;
+    let end = match trial.outcome {
+        Outcome::Failure => trial
+            .drop_step
+            .ok_or_else(|| ArmedError::NoDrop { trial: id() })?,
+        Outcome::Success => detect_release(trial, cfg).unwrap_or(trial.n_steps()),
+        Outcome::Unknown => return Err(ArmedError::UnknownOutcome { trial: id() }),
+    };
+    Ok(Some((lift.min(end), end)))
+}
+
+/// The grasp scored on its hand flag, and each contact channel scored on its own flag.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScoredGrasp {
+    /// Hand level.
+    pub hand: ArmedGrasp,
+    /// Per contact channel (the comparison the hand-level decision is measured against).
+    pub channels: Vec<ArmedGrasp>,
+}
+
+/// Scores one run in the trial's armed window (`Ok(None)` for a trial without contact).
+pub fn score(
+    trial: &Trial,
+    run: &HandRun,
+    cfg: &LabelConfig,
+) -> Result<Option<ScoredGrasp>, ArmedError> {
+    let Some((start, end)) = armed_window(trial, cfg)? else {
+        return Ok(None);
+    };
+    let grasp = |flags: Vec<bool>| ArmedGrasp {
+        trial: trial.id.clone(),
+        failure: trial.outcome == Outcome::Failure,
+        start,
+        end,
+        flags,
+        step_ms: 1000.0 / trial.rate_hz as f64,
+    };
+    Ok(Some(ScoredGrasp {
+        hand: grasp(run.hand_flag.clone()),
+        // The labelled contact channels (docs/labels.md), as the per-channel paper metrics.
+        channels: (0..run.channel_flag.len())
+            .filter(|&c| trial.contact.get(c) == Some(&true))
+            .map(|c| grasp(run.channel_flag[c].clone()))
+            .collect(),
+    }))
+}
+
+/// Where the firmware's model state starts on a channel: its contact onsets by the core's
+/// rule ([`ContactConfig`]) on the model's input scale. Training sequences start at the first
+/// onset and end where that contact ends, so that they start where the firmware's state does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OnsetRule {
+    /// The model's input scaling (raw → Q1.15).
+    pub scale: slipguard_core::sample::InputScale,
+    /// The contact rule on that scale.
+    pub contact: ContactConfig,
+}
+
+impl OnsetRule {
+    /// The rule of a model with these header settings.
+    pub fn of(config: &slipguard_core::blob::ModelConfig) -> Self {
+        Self {
+            scale: slipguard_core::sample::InputScale::of(config),
+            contact: ContactConfig::of(config),
+        }
+    }
+
+    /// The first contact of `samples` (raw sensor units, from the grasp start): its onset
+    /// step and the step at which it ends (exclusive; `samples.len()` if it lasts).
+    pub fn first_contact(&self, samples: &[f32]) -> Option<(usize, usize)> {
+        use slipguard_core::decision::{ContactEdge, ContactState};
+        let mut s = ContactState::new();
+        let mut onset = None;
+        for (t, &x) in samples.iter().enumerate() {
+            let q = self.scale.to_q15(x.round() as i32);
+            match (self.contact.update(&mut s, q), onset) {
+                (ContactEdge::Began, None) => onset = Some(t),
+                (ContactEdge::Ended, Some(on)) => return Some((on, t)),
+                _ => {}
+            }
+        }
+        onset.map(|on| (on, samples.len()))
+    }
+}
+
+/// One point of the operating curve: detection against false-alarm grasps for one decision.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CurvePoint {
+    /// Threshold on the hand's p(unstable), 0…1.
+    pub threshold: f64,
+    /// Consecutive steps at or above it before the hand flag rises.
+    pub raise_after: u8,
+    /// Detected failures / failures.
+    pub detected_rate: f64,
+    /// Successes with a false alarm / successes.
+    pub false_alarm_grasp_rate: f64,
+    /// Median lead of the detected failures, ms (0 with none).
+    pub lead_median_ms: f64,
+    /// Failures detected at least 300 ms ahead.
+    pub detected_300ms: usize,
+    /// Failures scored.
+    pub failures: usize,
+    /// Successes with a false alarm.
+    pub false_alarm_grasps: usize,
+    /// Successes scored.
+    pub successes: usize,
+}
+
+/// A scored run kept for decision sweeps: the run and its armed window.
+#[derive(Debug, Clone)]
+pub struct WindowedRun {
+    /// Trial id.
+    pub trial: String,
+    /// Failure or success.
+    pub failure: bool,
+    /// Armed window `[start, end)`.
+    pub window: (usize, usize),
+    /// Step duration, ms.
+    pub step_ms: f64,
+    /// The run.
+    pub run: HandRun,
+}
+
+impl WindowedRun {
+    /// The grasp scored with the hand flag of `hand` (recomputed from the stored hand p).
+    pub fn grasp_with(&self, hand: &HandConfig) -> ArmedGrasp {
+        ArmedGrasp {
+            trial: self.trial.clone(),
+            failure: self.failure,
+            start: self.window.0,
+            end: self.window.1,
+            flags: self.run.hand_flag_with(hand),
+            step_ms: self.step_ms,
+        }
+    }
+}
+
+/// Runs `model` over the trials with contact and keeps each run with its armed window.
+pub fn windowed_runs(
+    model: &Model<'_>,
+    trials: &[&Trial],
+    cfg: &LabelConfig,
+) -> Result<Vec<WindowedRun>, ArmedError> {
+    let contact = ContactConfig::of(model.config());
+    let hand = HandConfig::of(model.config());
+    let mut out = Vec::new();
+    for t in trials {
+        let Some(window) = armed_window(t, cfg)? else {
+            continue;
+        };
+        out.push(WindowedRun {
+            trial: t.id.clone(),
+            failure: t.outcome == Outcome::Failure,
+            window,
+            step_ms: 1000.0 / t.rate_hz as f64,
+            run: run_trial(model, t, &contact, &hand),
+        });
+    }
+    Ok(out)
+}
+
+/// The operating curve over `thresholds` × `raise_after` (the hand's clear_after and k kept).
+pub fn operating_curve(
+    runs: &[WindowedRun],
+    base: &HandConfig,
+    thresholds: &[f64],
+    raise_after: &[u8],
+) -> Vec<CurvePoint> {
+    let mut out = Vec::new();
+    for &r in raise_after {
+        for &th in thresholds {
+            let mut h = *base;
+            h.decision.threshold_q15 = crate::checkpoint::threshold_q15(th) as i16;
+            h.decision.raise_after = r.max(1);
+            let grasps: Vec<ArmedGrasp> = runs.iter().map(|w| w.grasp_with(&h)).collect();
+            let m = slipguard_data::armed::ArmedMetrics::of(&grasps);
+            out.push(CurvePoint {
+                threshold: th,
+                raise_after: r,
+                detected_rate: m.detected_rate().unwrap_or(0.0),
+                false_alarm_grasp_rate: m.false_alarm_grasp_rate().unwrap_or(0.0),
+                lead_median_ms: m.lead_median_ms().unwrap_or(0.0),
+                detected_300ms: m.detected_with_lead(300.0),
+                failures: m.failures,
+                false_alarm_grasps: m.false_alarm_grasps,
+                successes: m.successes,
+            });
+        }
+    }
+    out
+}
+
+/// Picks the decision on validation runs: most failures detected at least 300 ms ahead with
+/// at most `max_false_alarm_rate` of the successes flagged; ties go to fewer false-alarm
+/// grasps, then to the higher threshold. `None` if no point meets the false-alarm bound.
+pub fn pick_decision(curve: &[CurvePoint], max_false_alarm_rate: f64) -> Option<CurvePoint> {
+    curve
+        .iter()
+        .filter(|p| p.false_alarm_grasp_rate <= max_false_alarm_rate + 1e-12)
+        .max_by(|a, b| {
+            a.detected_300ms
+                .cmp(&b.detected_300ms)
+                .then(b.false_alarm_grasps.cmp(&a.false_alarm_grasps))
+                .then(a.threshold.total_cmp(&b.threshold))
+        })
+        .copied()
+}
+
+/// Cuts labelled sequences (which start at the grasp start) to where the firmware's model
+/// state starts: each keeps the steps from its first contact onset ([`OnsetRule`]) to where
+/// that contact ends. A sequence without contact, or whose contact begins only at or after
+/// the drop, is dropped. Applied to every training source (real, simulated, closed loop) and
+/// to the sequences the paper's metrics are computed on.
+pub fn cut_to_contact(
+    seqs: Vec<crate::evaluation::Sequence>,
+    rule: &OnsetRule,
+) -> Vec<crate::evaluation::Sequence> {
+    seqs.into_iter()
+        .filter_map(|mut s| {
+            let (on, off) = rule.first_contact(&s.cs.samples)?;
+            if s.cs.drop_index.is_some_and(|d| on >= d) || off <= on {
+                return None;
+            }
+            s.cs.samples = s.cs.samples[on..off].to_vec();
+            s.cs.labels = s.cs.labels[on..off.min(s.cs.labels.len())].to_vec();
+            s.cs.drop_index = s.cs.drop_index.map(|d| d - on);
+            s.lift = s.lift.map(|l| l.saturating_sub(on));
+            Some(s)
+        })
+        .collect()
+}
