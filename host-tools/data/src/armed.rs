@@ -234,6 +234,35 @@ impl ArmedReport {
         }
     }
 
+    /// One line: detected (with lead), false-alarm grasps and rate, each with its interval.
+    pub fn summary(&self) -> String {
+        let m = &self.metrics;
+        let ci = |i: Option<Interval>, pct: bool| {
+            i.map_or(String::new(), |i| {
+                if pct {
+                    format!(" [{:.0}–{:.0} %]", 100.0 * i.lo, 100.0 * i.hi)
+                } else {
+                    format!(" [{:.0}–{:.0}]", i.lo, i.hi)
+                }
+            })
+        };
+        format!(
+            "detected {}/{}{} (≥ 300 ms ahead: {}), lead median {}{}; false-alarm grasps {}/{}{}, {:.2} false alarms per armed minute{}",
+            m.detected,
+            m.failures,
+            ci(self.detected_rate_ci, true),
+            m.detected_with_lead(300.0),
+            m.lead_median_ms().map_or("-".into(), |l| format!("{l:.0} ms")),
+            ci(self.lead_median_ms_ci, false),
+            m.false_alarm_grasps,
+            m.successes,
+            ci(self.false_alarm_grasp_rate_ci, true),
+            m.false_alarms_per_min().unwrap_or(0.0),
+            self.false_alarms_per_min_ci
+                .map_or(String::new(), |i| format!(" [{:.2}–{:.2}]", i.lo, i.hi)),
+        )
+    }
+
     /// The figures as JSON under `prefix` (`armed.detected_rate`, … and `…_ci: [lo, hi]`).
     pub fn to_json(&self, prefix: &str) -> serde_json::Map<String, serde_json::Value> {
         use serde_json::{Value, json};

@@ -372,3 +372,11 @@ pub fn cut_to_contact(
         })
         .collect()
 }
+
+/// Thresholds of the operating curve and of the decision sweep.
+pub const CURVE_THRESHOLDS: [f64; 19] = [
+    0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85,
+    0.9, 0.95,
+];
+/// raise_after values of the operating curve and of the decision sweep.
+pub const CURVE_RAISE_AFTER: [u8; 4] = [1, 2, 3, 4];

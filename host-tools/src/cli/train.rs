@@ -6,15 +6,16 @@ use std::time::Instant;
 use anyhow::Context;
 use slipguard::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
 use slipguard_core::blob::Variant;
-use slipguard_core::decision::DecisionConfig;
+use slipguard_core::decision::{ContactConfig, DecisionConfig};
 use slipguard_core::float::FloatModel;
 use slipguard_data::labels::{ChannelSequence, LabelConfig};
-use slipguard_data::{eagle, load_path};
+use slipguard_data::{Trial, eagle, load_path};
 use slipguard_learn::checkpoint::{self, Checkpoint, threshold_q15};
 use slipguard_learn::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
 };
+use slipguard_learn::product::{self, OnsetRule};
 use slipguard_learn::train::{TrainConfig, init_model, split_by_trial, train};
 
 use super::progress::bar;
@@ -135,6 +136,15 @@ pub struct Args {
     /// With --tune-decision: smallest raise_after the sweep may pick (suppresses start-up blips).
     #[arg(long, default_value_t = 1)]
     pub min_raise: u8,
+    /// With --tune-decision on real trials: the largest share of the validation successes that
+    /// may raise the hand flag in their armed window (lift to release); among the decisions
+    /// that keep it, the one that detects most validation failures ≥ 300 ms ahead is picked.
+    #[arg(long, default_value_t = 0.125)]
+    pub max_false_alarm_rate: f64,
+    /// Train on sequences from the grasp start instead of from each channel's contact onset
+    /// (the firmware's model state starts at the onset; this is for comparison only).
+    #[arg(long)]
+    pub from_grasp_start: bool,
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
@@ -169,6 +179,12 @@ fn class_weights(s: &str) -> anyhow::Result<[f32; 2]> {
 
 /// Loads the real trials as sequences, with a clear message when the folder is missing.
 pub fn load_real(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Sequence>)> {
+    let (path, trials) = load_real_trials(path)?;
+    Ok((path, sequences_of(&trials, &LabelConfig::default())))
+}
+
+/// The real trials, annotated with the default labelling rules.
+pub fn load_real_trials(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Trial>)> {
     let path = path.map_or_else(eagle::default_data_dir, Path::to_path_buf);
     anyhow::ensure!(
         path.exists(),
@@ -179,7 +195,7 @@ pub fn load_real(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Sequence>)
     let cfg = LabelConfig::default();
     let trials =
         load_path(&path, &cfg, |_, _| {}).with_context(|| format!("loading {}", path.display()))?;
-    Ok((path, sequences_of(&trials, &cfg)))
+    Ok((path, trials))
 }
 
 fn refs(v: &[Sequence]) -> Vec<&ChannelSequence> {
@@ -227,12 +243,61 @@ impl Run<'_> {
         Ok((out.model, out.best_epoch, spe))
     }
 
-    fn decision(&self, model: &mut FloatModel, val: &[&Sequence]) -> anyhow::Result<()> {
-        let d = if self.a.tune_decision && !val.is_empty() {
+    fn decision(
+        &self,
+        model: &mut FloatModel,
+        val: &[&Sequence],
+        val_trials: &[&Trial],
+        calib: &[&[f32]],
+    ) -> anyhow::Result<()> {
+        let d = if self.a.tune_decision && !val_trials.is_empty() {
+            // The product's decision: the hand flag in the armed window of the validation
+            // trials, with the quantized model the firmware runs.
+            let blob = quantize_model(model, calib)?;
+            let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
+            let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
+                .map_err(|e| anyhow::anyhow!("the quantized model does not parse: {e}"))?;
+            let runs = product::windowed_runs(&m, val_trials, &LabelConfig::default())?;
+            let base = slipguard_core::decision::HandConfig::of(m.config());
+            let curve = product::operating_curve(
+                &runs,
+                &base,
+                &product::CURVE_THRESHOLDS,
+                &product::CURVE_RAISE_AFTER
+                    .iter()
+                    .copied()
+                    .filter(|&r| r >= self.a.min_raise)
+                    .collect::<Vec<_>>(),
+            );
+            let pick = product::pick_decision(&curve, self.a.max_false_alarm_rate)
+                .or_else(|| {
+                    curve.iter().copied().min_by(|a, b| {
+                        a.false_alarm_grasps
+                            .cmp(&b.false_alarm_grasps)
+                            .then(b.detected_300ms.cmp(&a.detected_300ms))
+                    })
+                })
+                .ok_or_else(|| anyhow::anyhow!("no validation trial with contact"))?;
+            eprintln!(
+                "  decision tuned on {} validation trials (hand level, armed window): threshold {:.2}, raise {}: {}/{} failures ≥ 300 ms ahead, {}/{} successes with a false alarm",
+                runs.len(),
+                pick.threshold,
+                pick.raise_after,
+                pick.detected_300ms,
+                pick.failures,
+                pick.false_alarm_grasps,
+                pick.successes
+            );
+            DecisionConfig {
+                threshold_q15: threshold_q15(pick.threshold) as i16,
+                raise_after: pick.raise_after,
+                clear_after: base.decision.clear_after,
+            }
+        } else if self.a.tune_decision && !val.is_empty() {
             let p = probabilities(model, &[], Kind::Float, val)?;
             let (d, m) = tune_decision(&p, val, self.a.min_raise);
             eprintln!(
-                "  decision tuned on validation: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
+                "  decision tuned on validation sequences: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
                 d.threshold_q15 as f64 / 32768.0,
                 d.raise_after,
                 d.clear_after,
@@ -281,10 +346,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         policy_share: a.closed_loop_policy_share,
         ..Default::default()
     };
+    let mut real_trials: Vec<Trial> = Vec::new();
     let (real, sim_pre, sim_mix) = match a.sensor {
         Sensor::Force => {
             let real = if cl_cfg.rate_mhz == 16_700 {
-                let (path, real) = load_real(a.path.as_deref())?;
+                let (path, trials) = load_real_trials(a.path.as_deref())?;
+                let real = sequences_of(&trials, &LabelConfig::default());
+                real_trials = trials;
                 eprintln!(
                     "real: {} sequences from {} ({} failure sequences)",
                     real.len(),
@@ -326,6 +394,34 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "--closed-loop-pretrain/--closed-loop-mix simulate the hand's force pads: use --sensor force"
     );
     let cl_mix = training_sequences(a.closed_loop_seed + 1, a.closed_loop_mix, &cl_cfg);
+    // Every sequence starts where the firmware's model state starts: at the channel's contact
+    // onset (the rule depends on the sensor's unit, scale and rate only, not on the variant).
+    let (real, sim_pre, sim_mix, cl_mix) = if a.from_grasp_start {
+        (real, sim_pre, sim_mix, cl_mix)
+    } else {
+        let probe = match a.sensor {
+            Sensor::Force => ev::force_config(Variant::Force, false, 1, "", cl_cfg.rate_mhz),
+            Sensor::Suction => ev::suction_config(Variant::Force, false, 1, ""),
+        };
+        let rule = OnsetRule::of(&probe);
+        let n0 = real.len() + sim_pre.len() + sim_mix.len() + cl_mix.len();
+        let cut = (
+            product::cut_to_contact(real, &rule),
+            product::cut_to_contact(sim_pre, &rule),
+            product::cut_to_contact(sim_mix, &rule),
+            product::cut_to_contact(cl_mix, &rule),
+        );
+        eprintln!(
+            "sequences start at each channel's contact onset ({} mN-equivalent Q1.15 {}, {} steps on, {} off): {} of {} kept",
+            ContactConfig::FORCE_ON_MN,
+            rule.contact.on_q15,
+            rule.contact.on_after,
+            rule.contact.off_after,
+            cut.0.len() + cut.1.len() + cut.2.len() + cut.3.len(),
+            n0
+        );
+        cut
+    };
     if !sim_pre.is_empty() || !sim_mix.is_empty() || !cl_mix.is_empty() {
         eprintln!(
             "simulated: {} pre-training and {} mixed sequences, {} closed-loop mixed sequences",
@@ -385,6 +481,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         } else {
             vec![Vec::new()]
         };
+        let mut armed_hand: Vec<slipguard_data::armed::ArmedGrasp> = Vec::new();
         let mut pooled: (Vec<&Sequence>, Vec<Vec<_>>, Vec<Vec<_>>) =
             (Vec::new(), Vec::new(), Vec::new());
         for (k, held) in folds.iter().enumerate() {
@@ -419,7 +516,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .chain(&sim_mix)
                 .filter(|s| val.iter().any(|v| std::ptr::eq(*v, &s.cs)))
                 .collect();
-            run.decision(&mut model, &val_seqs)?;
+            let val_ids: std::collections::BTreeSet<&str> =
+                val.iter().map(|v| v.trial_id.as_str()).collect();
+            let val_trials: Vec<&Trial> = real_trials
+                .iter()
+                .filter(|t| val_ids.contains(t.id.as_str()))
+                .collect();
+            let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+            run.decision(&mut model, &val_seqs, &val_trials, &calib)?;
             let mut extra = std::collections::BTreeMap::new();
             extra.insert("train_command".into(), run.command.clone());
             extra.insert("best_epoch".into(), best_epoch.to_string());
@@ -459,6 +563,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     clear_after: 1,
                 };
                 pooled.2.extend(p.iter().map(|q| decide(plain, q)));
+                // The product's figures: the fold's quantized model over its held-out trials,
+                // hand level, armed window.
+                let blob = quantize_model(&ck.model, &calib)?;
+                let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
+                let qm = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
+                    .map_err(|e| anyhow::anyhow!("the quantized model does not parse: {e}"))?;
+                let held_trials: Vec<&Trial> =
+                    real_trials.iter().filter(|t| held.contains(&t.id)).collect();
+                let hand = slipguard_core::decision::HandConfig::of(qm.config());
+                for w in product::windowed_runs(&qm, &held_trials, &LabelConfig::default())? {
+                    armed_hand.push(w.grasp_with(&hand));
+                }
                 pooled.0.extend(test);
                 pooled.1.extend(preds);
             } else {
@@ -477,6 +593,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             }
         }
         if a.cv > 0 {
+            let r = slipguard_data::armed::ArmedReport::of(&armed_hand);
+            let line = format!("{name}: {}-fold CV quantized, hand level, armed window: {}", a.cv, r.summary());
+            eprintln!("{line}");
+            summary.push(line);
             let m = metrics_of(&pooled.0, &pooled.1);
             let m0 = metrics_of(&pooled.0, &pooled.2);
             let line = format!(
