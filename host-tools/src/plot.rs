@@ -384,3 +384,74 @@ fn draw_prediction(
     root.present()?;
     Ok(())
 }
+
+/// The operating curve of a model: detected failures against successes with a false alarm
+/// (hand level, armed window) as the threshold moves, one line per raise_after, the model's
+/// own decision marked.
+pub fn plot_operating_curve(
+    curve: &[slipguard_learn::product::CurvePoint],
+    shipped: Option<&slipguard_learn::product::CurvePoint>,
+    title: &str,
+    path: &Path,
+) -> Result<()> {
+    draw_operating_curve(curve, shipped, title, path).map_err(|e| perr(path, e))
+}
+
+fn draw_operating_curve(
+    curve: &[slipguard_learn::product::CurvePoint],
+    shipped: Option<&slipguard_learn::product::CurvePoint>,
+    title: &str,
+    path: &Path,
+) -> std::result::Result<(), Box<dyn std::error::Error>> {
+    if let Some(d) = path.parent() {
+        std::fs::create_dir_all(d)?;
+    }
+    let root = BitMapBackend::new(path, (640, 560)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 15))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(-0.02f64..1.02f64, -0.02f64..1.05f64)?;
+    chart
+        .configure_mesh()
+        .x_desc("successes with a false alarm in the armed window (share)")
+        .y_desc("failures detected before the drop (share)")
+        .draw()?;
+    let mut raises: Vec<u8> = curve.iter().map(|p| p.raise_after).collect();
+    raises.sort_unstable();
+    raises.dedup();
+    for (i, r) in raises.iter().enumerate() {
+        let c = PALETTE[i % PALETTE.len()];
+        let pts: Vec<(f64, f64)> = curve
+            .iter()
+            .filter(|p| p.raise_after == *r)
+            .map(|p| (p.false_alarm_grasp_rate, p.detected_rate))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))?
+            .label(format!("raise after {r}"))
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], c.stroke_width(2)));
+        chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))?;
+    }
+    if let Some(s) = shipped {
+        let p = (s.false_alarm_grasp_rate, s.detected_rate);
+        chart
+            .draw_series(std::iter::once(Cross::new(p, 9, BLACK.stroke_width(3))))?
+            .label(format!(
+                "model's decision (p ≥ {:.2}, {} steps)",
+                s.threshold, s.raise_after
+            ))
+            .legend(|(x, y)| Cross::new((x + 7, y), 5, BLACK.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 11))
+        .position(SeriesLabelPosition::LowerRight)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
