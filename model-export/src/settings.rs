@@ -9,6 +9,7 @@
 use std::collections::BTreeMap;
 
 use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
+use slipguard_core::decision::Q15;
 use slipguard_core::features::stft::{StftConfig, WindowShape};
 
 use crate::error::{ExportError, Result};
@@ -269,12 +270,7 @@ impl Settings {
             })?;
             s
         } else {
-            StftConfig {
-                window_len: 0,
-                first_bin: 0,
-                n_bins: 0,
-                shape: WindowShape::Rectangular,
-            }
+            StftConfig::NONE
         };
         let threshold: f64 = self.parse("threshold")?;
         if !(threshold > 0.0 && threshold < 1.0) {
@@ -330,7 +326,7 @@ impl Settings {
             stft,
             hidden: [0, 0],
             cell_frac_bits: [0, 0],
-            threshold_q15: (threshold * 32768.0).round().clamp(1.0, 32767.0) as u16,
+            threshold_q15: Q15::from_f64(threshold).header_threshold(),
             raise_after,
             clear_after,
         };
@@ -371,14 +367,7 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
         "sample_rate_hz".into(),
         format!("{}", config.sample_rate_mhz as f64 / 1000.0),
     );
-    m.insert(
-        "input_unit".into(),
-        match config.input_unit {
-            InputUnit::MilliNewton => "mN",
-            InputUnit::Counts => "counts",
-        }
-        .into(),
-    );
+    m.insert("input_unit".into(), config.input_unit.to_string());
     m.insert("input_offset".into(), config.input_offset.to_string());
     m.insert(
         "input_full_scale".into(),
@@ -388,18 +377,11 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
         m.insert("stft_window".into(), config.stft.window_len.to_string());
         m.insert("stft_first_bin".into(), config.stft.first_bin.to_string());
         m.insert("stft_bins".into(), config.stft.n_bins.to_string());
-        m.insert(
-            "stft_shape".into(),
-            match config.stft.shape {
-                WindowShape::Rectangular => "rectangular",
-                WindowShape::Hann => "hann",
-            }
-            .into(),
-        );
+        m.insert("stft_shape".into(), config.stft.shape.to_string());
     }
     m.insert(
         "threshold".into(),
-        format!("{}", config.threshold_q15 as f64 / 32768.0),
+        format!("{}", Q15(config.threshold_q15 as i16).to_f64()),
     );
     m.insert("raise_after".into(), config.raise_after.to_string());
     m.insert("clear_after".into(), config.clear_after.to_string());

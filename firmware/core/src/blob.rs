@@ -86,6 +86,103 @@ pub enum InputUnit {
     Counts = 1,
 }
 
+/// A name that is not one of the model vocabulary's: [`Variant`], [`InputUnit`] or
+/// [`WindowShape`], as the CLIs, checkpoint metadata and exporter settings write them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct UnknownName {
+    /// What was being named ("variant", "input unit", "STFT window").
+    pub what: &'static str,
+    /// The accepted names, comma-separated.
+    pub expected: &'static str,
+}
+
+impl core::fmt::Display for UnknownName {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "unknown {} (expected {})", self.what, self.expected)
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for UnknownName {}
+
+impl core::fmt::Display for Variant {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl core::str::FromStr for Variant {
+    type Err = UnknownName;
+
+    /// Parses [`Variant::name`].
+    fn from_str(s: &str) -> Result<Self, UnknownName> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s.trim())
+            .ok_or(UnknownName {
+                what: "variant",
+                expected: "lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm",
+            })
+    }
+}
+
+impl InputUnit {
+    /// Name used by the CLIs, checkpoints and exporter settings.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::MilliNewton => "mN",
+            Self::Counts => "counts",
+        }
+    }
+}
+
+impl core::fmt::Display for InputUnit {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl core::str::FromStr for InputUnit {
+    type Err = UnknownName;
+
+    /// Parses [`InputUnit::name`].
+    fn from_str(s: &str) -> Result<Self, UnknownName> {
+        [Self::MilliNewton, Self::Counts]
+            .into_iter()
+            .find(|u| u.name() == s.trim())
+            .ok_or(UnknownName {
+                what: "input unit",
+                expected: "mN, counts",
+            })
+    }
+}
+
+impl core::fmt::Display for WindowShape {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            WindowShape::Rectangular => "rectangular",
+            WindowShape::Hann => "hann",
+        })
+    }
+}
+
+impl core::str::FromStr for WindowShape {
+    type Err = UnknownName;
+
+    /// Parses `rectangular` or `hann` (the [`Display`](core::fmt::Display) names).
+    fn from_str(s: &str) -> Result<Self, UnknownName> {
+        match s.trim() {
+            "rectangular" => Ok(WindowShape::Rectangular),
+            "hann" => Ok(WindowShape::Hann),
+            _ => Err(UnknownName {
+                what: "STFT window",
+                expected: "rectangular, hann",
+            }),
+        }
+    }
+}
+
 /// Flag bits of header byte 17.
 pub mod flags {
     /// The force difference d(t) = x(t) - x(t-1) (paper eq. 3) is an input of the force LSTM.
