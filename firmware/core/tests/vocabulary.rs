@@ -60,3 +60,48 @@ fn q15_rounds_to_nearest_and_saturates() {
     assert_eq!(Q15::from_f64(0.0).header_threshold(), 1);
     assert_eq!(Q15::from_f64(0.9).header_threshold(), 29_491);
 }
+
+#[test]
+fn blob_errors_keep_their_wire_detail_codes() {
+    use slipguard_core::blob::{BlobError, TensorKind};
+    use slipguard_core::features::stft::StftError;
+    // Pinned: controllers decode these (docs/protocol.md); a code never changes meaning.
+    let cases = [
+        (
+            BlobError::Truncated {
+                needed: 80,
+                present: 3,
+            },
+            (1, 80),
+        ),
+        (BlobError::BadMagic, (2, 0)),
+        (BlobError::UnsupportedVersion(7), (3, 7)),
+        (BlobError::BadLength, (4, 0)),
+        (
+            BlobError::BadCrc {
+                stored: 1,
+                computed: 0xDEAD_BEEF,
+            },
+            (5, 0xDEAD_BEEF),
+        ),
+        (BlobError::Misaligned, (6, 0)),
+        (BlobError::UnknownVariant(9), (7, 9)),
+        (BlobError::UnknownField, (8, 0)),
+        (BlobError::OverBounds, (9, 0)),
+        (BlobError::InconsistentSizes, (10, 0)),
+        (BlobError::Stft(StftError::WindowTooShort(2)), (11, 0)),
+        (BlobError::BadSetting, (12, 0)),
+        (BlobError::UnknownTensor, (13, 0)),
+        (BlobError::DuplicateTensor(TensorKind::FeatureNorm), (14, 1)),
+        (BlobError::MissingTensor(TensorKind::FeatureNorm), (15, 1)),
+        (BlobError::TensorShape(TensorKind::FeatureNorm), (16, 1)),
+        (
+            BlobError::TensorOutOfBounds(TensorKind::FeatureNorm),
+            (17, 1),
+        ),
+        (BlobError::QuantParam(TensorKind::FeatureNorm), (18, 1)),
+    ];
+    for (e, want) in cases {
+        assert_eq!(e.wire_detail(), want, "{e:?}");
+    }
+}

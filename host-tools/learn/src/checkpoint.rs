@@ -22,46 +22,8 @@ use slipguard_core::float::{FloatDense, FloatLstm, FloatModel};
 use crate::error::{LearnError, Result};
 use crate::train::lstm_prefixes;
 
-/// `__metadata__` keys.
-pub mod keys {
-    /// Settings format version, `"1"`.
-    pub const FORMAT: &str = "slipguard.format";
-    /// Model name (≤ 12 ASCII characters go into the blob header).
-    pub const NAME: &str = "name";
-    /// `lstm`, `stft-lstm`, `data-stft-lstm` or `lstm-stft-lstm`.
-    pub const VARIANT: &str = "variant";
-    /// `"true"` when d(t) = x(t) − x(t−1) is an input.
-    pub const FORCE_DIFF: &str = "force_diff";
-    /// Sample rate in Hz, e.g. `"16.7"`.
-    pub const SAMPLE_RATE_HZ: &str = "sample_rate_hz";
-    /// `mN` or `counts`.
-    pub const INPUT_UNIT: &str = "input_unit";
-    /// Raw value mapped to 0.
-    pub const INPUT_OFFSET: &str = "input_offset";
-    /// Raw span mapped to +1.0.
-    pub const INPUT_FULL_SCALE: &str = "input_full_scale";
-    /// STFT window length N in samples.
-    pub const STFT_WINDOW_LEN: &str = "stft_window";
-    /// First DFT bin used.
-    pub const STFT_FIRST_BIN: &str = "stft_first_bin";
-    /// Number of bins (bands).
-    pub const STFT_N_BINS: &str = "stft_bins";
-    /// `rectangular` or `hann`.
-    pub const STFT_WINDOW: &str = "stft_shape";
-    /// Hidden sizes, comma separated (`"128"`, or `"64,64"` for the dual variant); informative,
-    /// the reader takes them from the tensor shapes.
-    pub const HIDDEN: &str = "hidden";
-    /// Decision threshold on p(unstable), e.g. `"0.5"`.
-    pub const THRESHOLD: &str = "threshold";
-    /// Consecutive steps ≥ threshold before the flag rises.
-    pub const RAISE_AFTER: &str = "raise_after";
-    /// Consecutive steps < threshold before the flag clears.
-    pub const CLEAR_AFTER: &str = "clear_after";
-    /// JSON array of the feature means (Q1.15 units as reals), order [force, d(t), bands].
-    pub const NORM_MEAN: &str = "norm_mean";
-    /// JSON array of the feature standard deviations.
-    pub const NORM_STD: &str = "norm_std";
-}
+/// `__metadata__` keys: the core's, shared with the exporter's settings.
+pub use slipguard_core::blob::keys;
 
 /// The settings format version written by this module (the exporter's `slipguard.format`).
 pub const FORMAT: &str = "1";
