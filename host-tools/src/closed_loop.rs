@@ -20,6 +20,7 @@ use slipguard_app::app::App;
 use slipguard_app::decimate::RATIO;
 use slipguard_app::frontend::Frontend;
 use slipguard_app::profile::Profile;
+use slipguard_core::decision::Q15;
 use slipguard_core::protocol::{self, Command, Deframer, Frame, MAX_WIRE, Message, status};
 
 use slipguard_learn::evaluation::Sequence;
@@ -743,7 +744,7 @@ pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<
         let policy = match &cfg.policy {
             Some(blob) if rng.random_bool(cfg.policy_share.clamp(0.0, 1.0)) => {
                 let threshold = uniform(&mut rng, 0.07, 0.2);
-                ctl.decision = Some((slipguard_learn::checkpoint::threshold_q15(threshold), 1, 1));
+                ctl.decision = Some((Q15::from_f64(threshold).header_threshold(), 1, 1));
                 Some(blob.as_bytes())
             }
             _ => None,

@@ -15,6 +15,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
+use slipguard_core::decision::Q15;
 use slipguard_core::protocol::{
     DecodeError, Deframer, Fault, Flags, Frame, Info, MAX_CHANNELS, Message, P_NONE, ReplyBody,
     status,
@@ -291,7 +292,7 @@ impl Monitor {
                         "#".repeat(((p as u32 * 20 + 16384) / 32768) as usize)
                     });
                     let pv = p.map_or("   -  ".to_string(), |p| {
-                        format!("{:.3} ", p as f64 / 32768.0)
+                        format!("{:.3} ", Q15(p as i16).to_f64())
                     });
                     let _ = writeln!(s, "c{c:<2} {state} p={pv}{bar}");
                 }
@@ -350,7 +351,7 @@ impl Monitor {
                 ch[k] = if p == P_NONE || c >= f.channels as usize {
                     -1.0
                 } else {
-                    p as f32 / 32768.0
+                    Q15(p as i16).to_f64() as f32
                 };
             }
             samples[n][k] = f.unstable as f32;

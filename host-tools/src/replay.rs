@@ -10,6 +10,7 @@ use plotters::prelude::*;
 use slipguard_app::profile::Profile;
 use slipguard_app::replay::{self as fw, OpenWire, ScriptItem};
 use slipguard_core::blob::AlignedBlob;
+use slipguard_core::decision::Q15;
 use slipguard_core::model::Model;
 use slipguard_core::protocol::{self, Command, Deframer, Flags, Frame, MAX_WIRE, Message, P_NONE};
 
@@ -250,7 +251,7 @@ pub fn plot_fig8(
                 .filter(|&c| mask & (1 << c) != 0 && f.p[c] != P_NONE)
                 .map(|c| f.p[c])
                 .max()?;
-            Some((i as f32, p as f32 / 32768.0))
+            Some((i as f32, Q15(p as i16).to_f64() as f32))
         })
         .collect();
     let root = BitMapBackend::new(path, (1100, 420)).into_drawing_area();

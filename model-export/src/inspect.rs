@@ -1,7 +1,7 @@
 //! `inspect`: what a blob holds and what it costs on the target.
 
 use serde::Serialize;
-use slipguard_core::blob::{AlignedBlob, InputUnit, ModelBlob};
+use slipguard_core::blob::{AlignedBlob, ModelBlob};
 use slipguard_core::model::ChannelState;
 use slipguard_core::{MAX_HIDDEN, MAX_INPUT};
 
@@ -66,13 +66,7 @@ pub fn describe_blob(blob: &ModelBlob<'_>) -> BlobInfo {
     let c = blob.config;
     let mut header = describe(&c);
     header.insert("format_version".into(), "1".into());
-    header.insert(
-        "input_unit".into(),
-        match c.input_unit {
-            InputUnit::MilliNewton => "mN".into(),
-            InputUnit::Counts => "counts".into(),
-        },
-    );
+    header.insert("input_unit".into(), c.input_unit.to_string());
     header.insert("threshold_q15".into(), c.threshold_q15.to_string());
     header.insert("features".into(), c.feature_count().to_string());
     let mut tensors = vec![TensorInfo {

@@ -8,7 +8,9 @@
 
 use std::collections::BTreeMap;
 
+use slipguard_core::blob::keys;
 use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
+use slipguard_core::decision::Q15;
 use slipguard_core::features::stft::{StftConfig, WindowShape};
 
 use crate::error::{ExportError, Result};
@@ -17,71 +19,71 @@ use crate::error::{ExportError, Result};
 /// documented in docs/export.md).
 pub const KEYS: &[(&str, &str, &str)] = &[
     (
-        "slipguard.format",
+        keys::FORMAT,
         "1",
         "settings format version; must be 1 when present",
     ),
     (
-        "variant",
+        keys::VARIANT,
         "data-stft-lstm",
         "a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm",
     ),
     (
-        "force_diff",
+        keys::FORCE_DIFF,
         "false",
         "true: d(t) = x(t) - x(t-1) is an input after the force",
     ),
     (
-        "sample_rate_hz",
+        keys::SAMPLE_RATE_HZ,
         "16.7",
         "sample rate the model was trained at, Hz (stored in mHz)",
     ),
-    ("input_unit", "mN", "mN or counts"),
+    (keys::INPUT_UNIT, "mN", "mN or counts"),
     (
-        "input_offset",
+        keys::INPUT_OFFSET,
         "0",
         "raw value mapped to 0.0 (integer, input unit)",
     ),
     (
-        "input_full_scale",
+        keys::INPUT_FULL_SCALE,
         "10000",
         "raw span mapped to +1.0 (integer > 0, input unit)",
     ),
     (
-        "stft_window",
+        keys::STFT_WINDOW_LEN,
         "20",
         "STFT window N (4..=48); ignored by variant a",
     ),
-    ("stft_first_bin", "1", "first DFT bin"),
+    (keys::STFT_FIRST_BIN, "1", "first DFT bin"),
     (
-        "stft_bins",
+        keys::STFT_N_BINS,
         "10",
         "number of bins (1..=16, last bin <= N/2)",
     ),
-    ("stft_shape", "rectangular", "rectangular or hann"),
-    ("threshold", "0.5", "p(unstable) threshold in (0, 1)"),
+    (keys::STFT_WINDOW, "rectangular", "rectangular or hann"),
+    (keys::THRESHOLD, "0.5", "p(unstable) threshold in (0, 1)"),
     (
-        "raise_after",
+        keys::RAISE_AFTER,
         "1",
         "steps >= threshold before the flag rises (1..=255)",
     ),
     (
-        "clear_after",
+        keys::CLEAR_AFTER,
         "1",
         "steps < threshold before the flag clears (1..=255)",
     ),
     (
-        "norm_mean",
+        keys::NORM_MEAN,
         "",
         "JSON array: mean of each raw feature [force, d(t), bands...]",
     ),
     (
-        "norm_std",
+        keys::NORM_STD,
         "",
         "JSON array: standard deviation of each raw feature (> 0)",
     ),
     (
-        "name",
+        keys::NAME,
         "",
         "model name, ASCII, at most 12 bytes (default: the input file's stem)",
     ),
@@ -222,62 +224,62 @@ impl Settings {
 
     /// Parses and checks every setting.
     pub fn resolve(&self) -> Result<Resolved> {
-        if let Some(f) = self.get("slipguard.format")
+        if let Some(f) = self.get(keys::FORMAT)
             && f.trim() != "1"
         {
             return Err(ExportError::settings(
-                "slipguard.format",
+                keys::FORMAT,
                 format!("format `{f}` is not supported (this exporter reads 1)"),
             ));
         }
-        let variant = parse_variant(self.req("variant")?)?;
-        let force_diff = match self.req("force_diff")?.trim() {
+        let variant = parse_variant(self.req(keys::VARIANT)?)?;
+        let force_diff = match self.req(keys::FORCE_DIFF)?.trim() {
             "true" | "1" | "yes" => true,
             "false" | "0" | "no" => false,
             other => {
                 return Err(ExportError::settings(
-                    "force_diff",
+                    keys::FORCE_DIFF,
                     format!("`{other}` is not true/false"),
                 ));
             }
         };
-        let rate: f64 = self.parse("sample_rate_hz")?;
+        let rate: f64 = self.parse(keys::SAMPLE_RATE_HZ)?;
         if !(rate > 0.0 && rate < 4.0e6) {
             return Err(ExportError::settings(
-                "sample_rate_hz",
+                keys::SAMPLE_RATE_HZ,
                 format!("{rate} Hz is out of range"),
             ));
         }
-        let input_unit = match self.req("input_unit")?.trim() {
+        let input_unit = match self.req(keys::INPUT_UNIT)?.trim() {
             "mN" | "mn" | "millinewton" => InputUnit::MilliNewton,
             "counts" | "count" => InputUnit::Counts,
             other => {
                 return Err(ExportError::settings(
-                    "input_unit",
+                    keys::INPUT_UNIT,
                     format!("`{other}` is not mN or counts"),
                 ));
             }
         };
-        let input_offset: i32 = self.parse("input_offset")?;
-        let input_full_scale: i32 = self.parse("input_full_scale")?;
+        let input_offset: i32 = self.parse(keys::INPUT_OFFSET)?;
+        let input_full_scale: i32 = self.parse(keys::INPUT_FULL_SCALE)?;
         if input_full_scale <= 0 {
-            return Err(ExportError::settings("input_full_scale", "must be > 0"));
+            return Err(ExportError::settings(keys::INPUT_FULL_SCALE, "must be > 0"));
         }
         let stft = if variant.uses_bands() {
-            let shape = match self.req("stft_shape")?.trim() {
+            let shape = match self.req(keys::STFT_WINDOW)?.trim() {
                 "rectangular" | "rect" => WindowShape::Rectangular,
                 "hann" => WindowShape::Hann,
                 other => {
                     return Err(ExportError::settings(
-                        "stft_shape",
+                        keys::STFT_WINDOW,
                         format!("`{other}` is not rectangular or hann"),
                     ));
                 }
             };
             let s = StftConfig {
-                window_len: self.parse("stft_window")?,
-                first_bin: self.parse("stft_first_bin")?,
-                n_bins: self.parse("stft_bins")?,
+                window_len: self.parse(keys::STFT_WINDOW_LEN)?,
+                first_bin: self.parse(keys::STFT_FIRST_BIN)?,
+                n_bins: self.parse(keys::STFT_N_BINS)?,
                 shape,
             };
             s.validate().map_err(|e| {
@@ -285,22 +287,17 @@ impl Settings {
             })?;
             s
         } else {
-            StftConfig {
-                window_len: 0,
-                first_bin: 0,
-                n_bins: 0,
-                shape: WindowShape::Rectangular,
-            }
+            StftConfig::NONE
         };
-        let threshold: f64 = self.parse("threshold")?;
+        let threshold: f64 = self.parse(keys::THRESHOLD)?;
         if !(threshold > 0.0 && threshold < 1.0) {
             return Err(ExportError::settings(
-                "threshold",
+                keys::THRESHOLD,
                 format!("{threshold} is not in (0, 1)"),
             ));
         }
-        let raise_after: u8 = self.parse("raise_after")?;
-        let clear_after: u8 = self.parse("clear_after")?;
+        let raise_after: u8 = self.parse(keys::RAISE_AFTER)?;
+        let clear_after: u8 = self.parse(keys::CLEAR_AFTER)?;
         if raise_after == 0 || clear_after == 0 {
             return Err(ExportError::settings(
                 "raise_after/clear_after",
@@ -308,11 +305,11 @@ impl Settings {
             ));
         }
         let mut name = [0u8; 12];
-        let named = match self.get("name") {
+        let named = match self.get(keys::NAME) {
             Some(n) if !n.is_empty() => {
                 if !n.is_ascii() || n.len() > 12 {
                     return Err(ExportError::settings(
-                        "name",
+                        keys::NAME,
                         format!("`{n}` is not ASCII of at most 12 bytes"),
                     ));
                 }
@@ -346,7 +343,7 @@ impl Settings {
             stft,
             hidden: [0, 0],
             cell_frac_bits: [0, 0],
-            threshold_q15: (threshold * 32768.0).round().clamp(1.0, 32767.0) as u16,
+            threshold_q15: Q15::from_f64(threshold).header_threshold(),
             raise_after,
             clear_after,
         };
@@ -366,8 +363,8 @@ impl Settings {
         Ok(Resolved {
             dual_order,
             config,
-            norm_mean: self.floats("norm_mean")?,
-            norm_std: self.floats("norm_std")?,
+            norm_mean: self.floats(keys::NORM_MEAN)?,
+            norm_std: self.floats(keys::NORM_STD)?,
             model_id,
             named,
         })
@@ -383,7 +380,7 @@ pub fn parse_variant(v: &str) -> Result<Variant> {
         "d" | "(d)" | "lstm-stft-lstm" | "dual" => Variant::DualLstm,
         other => {
             return Err(ExportError::settings(
-                "variant",
+                keys::VARIANT,
                 format!(
                     "`{other}` is not one of a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm"
                 ),
@@ -395,45 +392,37 @@ pub fn parse_variant(v: &str) -> Result<Variant> {
 /// Writes a config back into settings strings (for the report and round trips).
 pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
     let mut m = BTreeMap::new();
-    m.insert("variant".into(), config.variant.name().into());
-    m.insert("force_diff".into(), config.force_diff.to_string());
+    m.insert(keys::VARIANT.into(), config.variant.name().into());
+    m.insert(keys::FORCE_DIFF.into(), config.force_diff.to_string());
     m.insert(
-        "sample_rate_hz".into(),
+        keys::SAMPLE_RATE_HZ.into(),
         format!("{}", config.sample_rate_mhz as f64 / 1000.0),
     );
+    m.insert(keys::INPUT_UNIT.into(), config.input_unit.to_string());
+    m.insert(keys::INPUT_OFFSET.into(), config.input_offset.to_string());
     m.insert(
-        "input_unit".into(),
-        match config.input_unit {
-            InputUnit::MilliNewton => "mN",
-            InputUnit::Counts => "counts",
-        }
-        .into(),
-    );
-    m.insert("input_offset".into(), config.input_offset.to_string());
-    m.insert(
-        "input_full_scale".into(),
+        keys::INPUT_FULL_SCALE.into(),
         config.input_full_scale.to_string(),
     );
     if config.variant.uses_bands() {
-        m.insert("stft_window".into(), config.stft.window_len.to_string());
-        m.insert("stft_first_bin".into(), config.stft.first_bin.to_string());
-        m.insert("stft_bins".into(), config.stft.n_bins.to_string());
         m.insert(
-            "stft_shape".into(),
-            match config.stft.shape {
-                WindowShape::Rectangular => "rectangular",
-                WindowShape::Hann => "hann",
-            }
-            .into(),
+            keys::STFT_WINDOW_LEN.into(),
+            config.stft.window_len.to_string(),
         );
+        m.insert(
+            keys::STFT_FIRST_BIN.into(),
+            config.stft.first_bin.to_string(),
+        );
+        m.insert(keys::STFT_N_BINS.into(), config.stft.n_bins.to_string());
+        m.insert(keys::STFT_WINDOW.into(), config.stft.shape.to_string());
     }
     m.insert(
-        "threshold".into(),
-        format!("{}", config.threshold_q15 as f64 / 32768.0),
+        keys::THRESHOLD.into(),
+        format!("{}", Q15(config.threshold_q15 as i16).to_f64()),
     );
-    m.insert("raise_after".into(), config.raise_after.to_string());
-    m.insert("clear_after".into(), config.clear_after.to_string());
-    m.insert("name".into(), config.name_str().into());
+    m.insert(keys::RAISE_AFTER.into(), config.raise_after.to_string());
+    m.insert(keys::CLEAR_AFTER.into(), config.clear_after.to_string());
+    m.insert(keys::NAME.into(), config.name_str().into());
     m.insert("model_id".into(), format!("{:#010x}", config.model_id));
     m
 }
@@ -457,11 +446,11 @@ mod tests {
     #[test]
     fn describe_round_trips_through_resolve() {
         let mut s = Settings::defaults();
-        s.set("variant", "d");
-        s.set("force_diff", "true");
-        s.set("stft_shape", "hann");
-        s.set("threshold", "0.625");
-        s.set("name", "rt");
+        s.set(keys::VARIANT, "d");
+        s.set(keys::FORCE_DIFF, "true");
+        s.set(keys::STFT_WINDOW, "hann");
+        s.set(keys::THRESHOLD, "0.625");
+        s.set(keys::NAME, "rt");
         let c = s.resolve().unwrap().config;
         let mut back = Settings::defaults();
         back.merge(&describe(&c));
@@ -474,12 +463,12 @@ mod tests {
     fn later_sources_win_and_unknown_keys_are_kept_for_a_warning() {
         let mut s = Settings::defaults();
         let file: BTreeMap<String, String> = [
-            ("variant".to_string(), "a".to_string()),
+            (keys::VARIANT.to_string(), "a".to_string()),
             ("lr".to_string(), "0.0006".to_string()),
         ]
         .into();
         s.merge(&file);
-        s.set("variant", "b");
+        s.set(keys::VARIANT, "b");
         assert_eq!(s.resolve().unwrap().config.variant, Variant::Stft);
         assert_eq!(s.unknown, vec!["lr".to_string()]);
     }
@@ -487,13 +476,13 @@ mod tests {
     #[test]
     fn each_bad_value_names_its_key() {
         for (k, v) in [
-            ("variant", "x"),
-            ("threshold", "0"),
-            ("input_full_scale", "-3"),
-            ("stft_window", "2"),
-            ("raise_after", "0"),
-            ("norm_mean", "[1, \"a\"]"),
-            ("slipguard.format", "2"),
+            (keys::VARIANT, "x"),
+            (keys::THRESHOLD, "0"),
+            (keys::INPUT_FULL_SCALE, "-3"),
+            (keys::STFT_WINDOW_LEN, "2"),
+            (keys::RAISE_AFTER, "0"),
+            (keys::NORM_MEAN, "[1, \"a\"]"),
+            (keys::FORMAT, "2"),
         ] {
             let mut s = Settings::defaults();
             s.set(k, v);

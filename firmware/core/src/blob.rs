@@ -92,6 +92,145 @@ pub enum InputUnit {
     Counts = 1,
 }
 
+/// A name that is not one of the model vocabulary's: [`Variant`], [`InputUnit`] or
+/// [`WindowShape`], as the CLIs, checkpoint metadata and exporter settings write them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct UnknownName {
+    /// What was being named ("variant", "input unit", "STFT window").
+    pub what: &'static str,
+    /// The accepted names, comma-separated.
+    pub expected: &'static str,
+}
+
+impl core::fmt::Display for UnknownName {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "unknown {} (expected {})", self.what, self.expected)
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for UnknownName {}
+
+impl core::fmt::Display for Variant {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl core::str::FromStr for Variant {
+    type Err = UnknownName;
+
+    /// Parses [`Variant::name`].
+    fn from_str(s: &str) -> Result<Self, UnknownName> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s.trim())
+            .ok_or(UnknownName {
+                what: "variant",
+                expected: "lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm",
+            })
+    }
+}
+
+impl InputUnit {
+    /// Name used by the CLIs, checkpoints and exporter settings.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::MilliNewton => "mN",
+            Self::Counts => "counts",
+        }
+    }
+}
+
+impl core::fmt::Display for InputUnit {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl core::str::FromStr for InputUnit {
+    type Err = UnknownName;
+
+    /// Parses [`InputUnit::name`].
+    fn from_str(s: &str) -> Result<Self, UnknownName> {
+        [Self::MilliNewton, Self::Counts]
+            .into_iter()
+            .find(|u| u.name() == s.trim())
+            .ok_or(UnknownName {
+                what: "input unit",
+                expected: "mN, counts",
+            })
+    }
+}
+
+impl core::fmt::Display for WindowShape {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            WindowShape::Rectangular => "rectangular",
+            WindowShape::Hann => "hann",
+        })
+    }
+}
+
+impl core::str::FromStr for WindowShape {
+    type Err = UnknownName;
+
+    /// Parses `rectangular` or `hann` (the [`Display`](core::fmt::Display) names).
+    fn from_str(s: &str) -> Result<Self, UnknownName> {
+        match s.trim() {
+            "rectangular" => Ok(WindowShape::Rectangular),
+            "hann" => Ok(WindowShape::Hann),
+            _ => Err(UnknownName {
+                what: "STFT window",
+                expected: "rectangular, hann",
+            }),
+        }
+    }
+}
+
+/// Keys of the model settings as checkpoint `__metadata__` and exporter settings write them
+/// (docs/checkpoint.md, docs/export.md): one list for the trainer and the exporter.
+pub mod keys {
+    /// Settings format version, `"1"`.
+    pub const FORMAT: &str = "slipguard.format";
+    /// Model name (≤ 12 ASCII characters go into the blob header).
+    pub const NAME: &str = "name";
+    /// `lstm`, `stft-lstm`, `data-stft-lstm` or `lstm-stft-lstm`.
+    pub const VARIANT: &str = "variant";
+    /// `"true"` when d(t) = x(t) − x(t−1) is an input.
+    pub const FORCE_DIFF: &str = "force_diff";
+    /// Sample rate in Hz, e.g. `"16.7"`.
+    pub const SAMPLE_RATE_HZ: &str = "sample_rate_hz";
+    /// `mN` or `counts`.
+    pub const INPUT_UNIT: &str = "input_unit";
+    /// Raw value mapped to 0.
+    pub const INPUT_OFFSET: &str = "input_offset";
+    /// Raw span mapped to +1.0.
+    pub const INPUT_FULL_SCALE: &str = "input_full_scale";
+    /// STFT window length N in samples.
+    pub const STFT_WINDOW_LEN: &str = "stft_window";
+    /// First DFT bin used.
+    pub const STFT_FIRST_BIN: &str = "stft_first_bin";
+    /// Number of bins (bands).
+    pub const STFT_N_BINS: &str = "stft_bins";
+    /// `rectangular` or `hann`.
+    pub const STFT_WINDOW: &str = "stft_shape";
+    /// Hidden sizes, comma separated (`"128"`, or `"64,64"` for the dual variant); informative,
+    /// the reader takes them from the tensor shapes.
+    pub const HIDDEN: &str = "hidden";
+    /// Decision threshold on p(unstable), e.g. `"0.5"`.
+    pub const THRESHOLD: &str = "threshold";
+    /// Consecutive steps ≥ threshold before the flag rises.
+    pub const RAISE_AFTER: &str = "raise_after";
+    /// Consecutive steps < threshold before the flag clears.
+    pub const CLEAR_AFTER: &str = "clear_after";
+    /// JSON array of the feature means (Q1.15 units as reals), order [force, d(t), bands].
+    pub const NORM_MEAN: &str = "norm_mean";
+    /// JSON array of the feature standard deviations.
+    pub const NORM_STD: &str = "norm_std";
+}
+
 /// Flag bits of header byte 17.
 pub mod flags {
     /// The force difference d(t) = x(t) - x(t-1) (paper eq. 3) is an input of the force LSTM.
@@ -377,6 +516,33 @@ pub enum BlobError {
     TensorOutOfBounds(TensorKind),
     /// A requantisation shift outside 1..=62 or a cell format outside 1..=15.
     QuantParam(TensorKind),
+}
+
+impl BlobError {
+    /// The stable detail code and value this error is reported with on the wire (the fault
+    /// reply's detail, docs/protocol.md). Exhaustive: a new variant needs its own code here.
+    pub fn wire_detail(self) -> (u8, u32) {
+        match self {
+            BlobError::Truncated { needed, .. } => (1, needed),
+            BlobError::BadMagic => (2, 0),
+            BlobError::UnsupportedVersion(v) => (3, v as u32),
+            BlobError::BadLength => (4, 0),
+            BlobError::BadCrc { computed, .. } => (5, computed),
+            BlobError::Misaligned => (6, 0),
+            BlobError::UnknownVariant(v) => (7, v as u32),
+            BlobError::UnknownField => (8, 0),
+            BlobError::OverBounds => (9, 0),
+            BlobError::InconsistentSizes => (10, 0),
+            BlobError::Stft(_) => (11, 0),
+            BlobError::BadSetting => (12, 0),
+            BlobError::UnknownTensor => (13, 0),
+            BlobError::DuplicateTensor(k) => (14, k as u32),
+            BlobError::MissingTensor(k) => (15, k as u32),
+            BlobError::TensorShape(k) => (16, k as u32),
+            BlobError::TensorOutOfBounds(k) => (17, k as u32),
+            BlobError::QuantParam(k) => (18, k as u32),
+        }
+    }
 }
 
 impl core::fmt::Display for BlobError {

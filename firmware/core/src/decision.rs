@@ -30,6 +30,41 @@ pub fn p_unstable(dense: &DenseTensors<'_>, hs: &[&[i16]]) -> i16 {
     sigmoid(sat_i16_wide(logit[1] - logit[0]))
 }
 
+/// A probability or threshold in Q0.15: `/// Q0.15, +1.0 = 32 768` (so the largest value, 32 767,
+/// is 1 − 2⁻¹⁵). The one converter between f64 and the fixed-point p(unstable) and thresholds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Q15(pub i16);
+
+impl Q15 {
+    /// +1.0 in Q0.15.
+    pub const ONE: f64 = 32_768.0;
+
+    /// `x` rounded to the nearest Q0.15 value (halves away from zero), saturated to the i16 range
+    /// (so 1.0 becomes 32 767).
+    pub const fn from_f64(x: f64) -> Self {
+        let v = crate::const_math::round(x * Self::ONE);
+        Q15(if v >= i16::MAX as f64 {
+            i16::MAX
+        } else if v <= i16::MIN as f64 {
+            i16::MIN
+        } else {
+            v as i16
+        })
+    }
+
+    /// The value as f64 (exact).
+    pub const fn to_f64(self) -> f64 {
+        self.0 as f64 / Self::ONE
+    }
+
+    /// The model header's threshold field: clamped to 1…32 767, the range a blob's threshold must
+    /// have to parse (0 would flag every step).
+    pub const fn header_threshold(self) -> u16 {
+        if self.0 < 1 { 1 } else { self.0 as u16 }
+    }
+}
+
 /// Threshold and hysteresis of the unstable flag.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -14,53 +14,16 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 use safetensors::tensor::{Dtype, TensorView};
-use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
+use slipguard_core::blob::{InputUnit, ModelConfig, UnknownName, Variant};
+use slipguard_core::decision::Q15;
 use slipguard_core::features::stft::{StftConfig, WindowShape};
 use slipguard_core::float::{FloatDense, FloatLstm, FloatModel};
 
 use crate::error::{LearnError, Result};
 use crate::train::lstm_prefixes;
 
-/// `__metadata__` keys.
-pub mod keys {
-    /// Settings format version, `"1"`.
-    pub const FORMAT: &str = "slipguard.format";
-    /// Model name (≤ 12 ASCII characters go into the blob header).
-    pub const NAME: &str = "name";
-    /// `lstm`, `stft-lstm`, `data-stft-lstm` or `lstm-stft-lstm`.
-    pub const VARIANT: &str = "variant";
-    /// `"true"` when d(t) = x(t) − x(t−1) is an input.
-    pub const FORCE_DIFF: &str = "force_diff";
-    /// Sample rate in Hz, e.g. `"16.7"`.
-    pub const SAMPLE_RATE_HZ: &str = "sample_rate_hz";
-    /// `mN` or `counts`.
-    pub const INPUT_UNIT: &str = "input_unit";
-    /// Raw value mapped to 0.
-    pub const INPUT_OFFSET: &str = "input_offset";
-    /// Raw span mapped to +1.0.
-    pub const INPUT_FULL_SCALE: &str = "input_full_scale";
-    /// STFT window length N in samples.
-    pub const STFT_WINDOW_LEN: &str = "stft_window";
-    /// First DFT bin used.
-    pub const STFT_FIRST_BIN: &str = "stft_first_bin";
-    /// Number of bins (bands).
-    pub const STFT_N_BINS: &str = "stft_bins";
-    /// `rectangular` or `hann`.
-    pub const STFT_WINDOW: &str = "stft_shape";
-    /// Hidden sizes, comma separated (`"128"`, or `"64,64"` for the dual variant); informative,
-    /// the reader takes them from the tensor shapes.
-    pub const HIDDEN: &str = "hidden";
-    /// Decision threshold on p(unstable), e.g. `"0.5"`.
-    pub const THRESHOLD: &str = "threshold";
-    /// Consecutive steps ≥ threshold before the flag rises.
-    pub const RAISE_AFTER: &str = "raise_after";
-    /// Consecutive steps < threshold before the flag clears.
-    pub const CLEAR_AFTER: &str = "clear_after";
-    /// JSON array of the feature means (Q1.15 units as reals), order [force, d(t), bands].
-    pub const NORM_MEAN: &str = "norm_mean";
-    /// JSON array of the feature standard deviations.
-    pub const NORM_STD: &str = "norm_std";
-}
+/// `__metadata__` keys: the core's, shared with the exporter's settings.
+pub use slipguard_core::blob::keys;
 
 /// The settings format version written by this module (the exporter's `slipguard.format`).
 pub const FORMAT: &str = "1";
@@ -73,13 +36,6 @@ pub struct Checkpoint {
     pub extra: BTreeMap<String, String>,
 }
 
-fn unit_name(u: InputUnit) -> &'static str {
-    match u {
-        InputUnit::MilliNewton => "mN",
-        InputUnit::Counts => "counts",
-    }
-}
-
 /// The model settings as metadata strings.
 pub fn config_metadata(m: &FloatModel) -> BTreeMap<String, String> {
     let c = &m.config;
@@ -89,30 +45,23 @@ pub fn config_metadata(m: &FloatModel) -> BTreeMap<String, String> {
     };
     put(keys::FORMAT, FORMAT.into());
     put(keys::NAME, c.name_str().into());
-    put(keys::VARIANT, c.variant.name().into());
+    put(keys::VARIANT, c.variant.to_string());
     put(keys::FORCE_DIFF, c.force_diff.to_string());
     put(keys::SAMPLE_RATE_HZ, format!("{}", c.sample_rate_hz()));
-    put(keys::INPUT_UNIT, unit_name(c.input_unit).into());
+    put(keys::INPUT_UNIT, c.input_unit.to_string());
     put(keys::INPUT_OFFSET, c.input_offset.to_string());
     put(keys::INPUT_FULL_SCALE, c.input_full_scale.to_string());
     put(keys::STFT_WINDOW_LEN, c.stft.window_len.to_string());
     put(keys::STFT_FIRST_BIN, c.stft.first_bin.to_string());
     put(keys::STFT_N_BINS, c.stft.n_bins.to_string());
-    put(
-        keys::STFT_WINDOW,
-        match c.stft.shape {
-            WindowShape::Rectangular => "rectangular",
-            WindowShape::Hann => "hann",
-        }
-        .into(),
-    );
+    put(keys::STFT_WINDOW, c.stft.shape.to_string());
     let hidden: Vec<String> = (0..c.variant.lstm_count())
         .map(|k| c.hidden[k].to_string())
         .collect();
     put(keys::HIDDEN, hidden.join(","));
     put(
         keys::THRESHOLD,
-        format!("{}", c.threshold_q15 as f64 / 32768.0),
+        format!("{}", Q15(c.threshold_q15 as i16).to_f64()),
     );
     put(keys::RAISE_AFTER, c.raise_after.to_string());
     put(keys::CLEAR_AFTER, c.clear_after.to_string());
@@ -151,22 +100,15 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> Result<ModelConfig>
             .parse()
             .map_err(|_| bad(format!("metadata `{k}` = `{v}` is not a number")))
     }
-    let variant = match get(keys::VARIANT)? {
-        v if v == Variant::Force.name() => Variant::Force,
-        v if v == Variant::Stft.name() => Variant::Stft,
-        v if v == Variant::ForceStft.name() => Variant::ForceStft,
-        v if v == Variant::DualLstm.name() => Variant::DualLstm,
-        v => return Err(bad(format!("unknown variant `{v}`"))),
-    };
-    let input_unit = match get(keys::INPUT_UNIT)? {
-        "mN" => InputUnit::MilliNewton,
-        "counts" => InputUnit::Counts,
-        u => return Err(bad(format!("unknown input unit `{u}`"))),
-    };
-    let shape = match md.get(keys::STFT_WINDOW).map(String::as_str) {
-        None | Some("rectangular") => WindowShape::Rectangular,
-        Some("hann") => WindowShape::Hann,
-        Some(s) => return Err(bad(format!("unknown STFT window `{s}`"))),
+    fn name<T: std::str::FromStr<Err = UnknownName>>(k: &str, v: &str) -> Result<T> {
+        v.parse()
+            .map_err(|e: UnknownName| bad(format!("metadata `{k}` = `{v}`: {e}")))
+    }
+    let variant: Variant = name(keys::VARIANT, get(keys::VARIANT)?)?;
+    let input_unit: InputUnit = name(keys::INPUT_UNIT, get(keys::INPUT_UNIT)?)?;
+    let shape: WindowShape = match md.get(keys::STFT_WINDOW) {
+        None => WindowShape::Rectangular,
+        Some(s) => name(keys::STFT_WINDOW, s)?,
     };
     let stft = if variant.uses_bands() {
         StftConfig {
@@ -176,12 +118,7 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> Result<ModelConfig>
             shape,
         }
     } else {
-        StftConfig {
-            window_len: 0,
-            first_bin: 0,
-            n_bins: 0,
-            shape: WindowShape::Rectangular,
-        }
+        StftConfig::NONE
     };
     let hs: Vec<u16> = match md.get(keys::HIDDEN) {
         Some(h) => h
@@ -221,16 +158,10 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> Result<ModelConfig>
         stft,
         hidden,
         cell_frac_bits: [0, 0],
-        threshold_q15: threshold_q15(thr),
+        threshold_q15: Q15::from_f64(thr).header_threshold(),
         raise_after: small(keys::RAISE_AFTER)?,
         clear_after: small(keys::CLEAR_AFTER)?,
     })
-}
-
-/// A p(unstable) threshold in the header's Q0.15 (+1.0 = 32 768), clamped to 1…32 767: the
-/// range a blob's threshold must have to parse (0 would flag everything).
-pub fn threshold_q15(p: f64) -> u16 {
-    (p * 32768.0).round().clamp(1.0, 32767.0) as u16
 }
 
 /// Serialises a checkpoint to safetensors bytes.

@@ -3,7 +3,7 @@
 //! Metrics come from [`slipguard_data::metrics`]; the Fig. 8 plots are the CLI's.
 
 use slipguard_core::blob::{AlignedBlob, InputUnit, ModelConfig, Variant};
-use slipguard_core::decision::{DecisionConfig, DecisionState};
+use slipguard_core::decision::{DecisionConfig, DecisionState, Q15};
 use slipguard_core::features::stft::StftConfig;
 use slipguard_core::float::FloatModel;
 use slipguard_core::model::{ChannelState, Model};
@@ -130,12 +130,7 @@ fn base_config(
         stft: if variant.uses_bands() {
             StftConfig::PAPER
         } else {
-            StftConfig {
-                window_len: 0,
-                first_bin: 0,
-                n_bins: 0,
-                shape: slipguard_core::features::stft::WindowShape::Rectangular,
-            }
+            StftConfig::NONE
         },
         hidden: [
             hidden,
@@ -164,7 +159,7 @@ pub fn float_p_q15(model: &FloatModel, samples: &[f32]) -> Vec<i16> {
         .iter()
         .map(|&x| {
             let p = model.step(&mut st, x).p_unstable;
-            (p * 32768.0).round().min(32767.0) as i16
+            Q15::from_f64(p as f64).0
         })
         .collect()
 }
@@ -300,7 +295,7 @@ pub fn tune_decision(
         {
             for clear in [1u8, 3, 10] {
                 let d = DecisionConfig {
-                    threshold_q15: (thr * 32768.0) as i16,
+                    threshold_q15: Q15::from_f64(thr).0,
                     raise_after: raise,
                     clear_after: clear,
                 };
@@ -319,7 +314,7 @@ pub fn tune_decision(
 
 /// Writes the decision rule into a config.
 pub fn set_decision(c: &mut ModelConfig, d: DecisionConfig) {
-    c.threshold_q15 = d.threshold_q15.max(1) as u16;
+    c.threshold_q15 = Q15(d.threshold_q15).header_threshold();
     c.raise_after = d.raise_after;
     c.clear_after = d.clear_after;
 }

@@ -313,7 +313,7 @@ pub fn operating_curve(
     for &r in raise_after {
         for &th in thresholds {
             let mut h = *base;
-            h.decision.threshold_q15 = crate::checkpoint::threshold_q15(th) as i16;
+            h.decision.threshold_q15 = slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
             h.decision.raise_after = r.max(1);
             let grasps: Vec<ArmedGrasp> = runs.iter().map(|w| w.grasp_with(&h)).collect();
             let m = slipguard_data::armed::ArmedMetrics::of(&grasps);

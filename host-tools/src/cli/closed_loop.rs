@@ -13,8 +13,8 @@ use slipguard::closed_loop::{
 };
 use slipguard::replay::{default_models, load_blob, shipped_blobs};
 use slipguard_app::profile::Profile;
+use slipguard_core::decision::Q15;
 use slipguard_core::model::Model;
-use slipguard_learn::checkpoint::threshold_q15;
 
 #[derive(Debug, Parser)]
 pub struct Args {
@@ -154,9 +154,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     let decision = match a.threshold {
-        Some(t) if t > 0.0 && t < 1.0 && a.raise_after >= 1 && a.clear_after >= 1 => {
-            Some((threshold_q15(t), a.raise_after, a.clear_after))
-        }
+        Some(t) if t > 0.0 && t < 1.0 && a.raise_after >= 1 && a.clear_after >= 1 => Some((
+            Q15::from_f64(t).header_threshold(),
+            a.raise_after,
+            a.clear_after,
+        )),
         Some(t) => anyhow::bail!(
             "--threshold {t} must be in (0, 1) and --raise-after/--clear-after at least 1"
         ),
@@ -188,7 +190,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             md,
             "Decision set by the controller after grasp start (set-threshold command): p ≥ {:.3}, \
              raise after {r}, clear after {c} frames.\n",
-            t as f64 / 32768.0
+            Q15(t as i16).to_f64()
         );
     }
     let _ = writeln!(

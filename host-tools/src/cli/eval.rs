@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use slipguard::plot::plot_prediction;
 use slipguard_core::blob::InputUnit;
-use slipguard_core::decision::DecisionConfig;
-use slipguard_learn::checkpoint::{self, Checkpoint, threshold_q15};
+use slipguard_core::decision::{DecisionConfig, Q15};
+use slipguard_learn::checkpoint::{self, Checkpoint};
 use slipguard_learn::evaluation::{
     Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, probabilities, quantize_model,
     row_markdown, sim_force_sequences, sim_suction_sequences,
@@ -255,7 +255,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             let c = &mut ck.model.config;
             let before = (c.threshold_q15, c.raise_after, c.clear_after);
             if let Some(t) = a.threshold {
-                c.threshold_q15 = threshold_q15(t);
+                c.threshold_q15 = Q15::from_f64(t).header_threshold();
             }
             if let Some(r) = a.raise_after {
                 c.raise_after = r.max(1);

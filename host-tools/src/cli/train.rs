@@ -6,11 +6,11 @@ use std::time::Instant;
 use anyhow::Context;
 use slipguard::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
 use slipguard_core::blob::Variant;
-use slipguard_core::decision::{ContactConfig, DecisionConfig};
+use slipguard_core::decision::{ContactConfig, DecisionConfig, Q15};
 use slipguard_core::float::FloatModel;
 use slipguard_data::labels::{ChannelSequence, LabelConfig};
 use slipguard_data::{Trial, eagle, load_path};
-use slipguard_learn::checkpoint::{self, Checkpoint, threshold_q15};
+use slipguard_learn::checkpoint::{self, Checkpoint};
 use slipguard_learn::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
@@ -159,10 +159,8 @@ pub fn parse_variants(s: &str) -> anyhow::Result<Vec<Variant>> {
     }
     s.split(',')
         .map(|v| {
-            Variant::ALL
-                .into_iter()
-                .find(|x| x.name() == v.trim())
-                .with_context(|| format!("unknown variant `{v}`"))
+            v.parse::<Variant>()
+                .with_context(|| format!("--variant `{}`", v.trim()))
         })
         .collect()
 }
@@ -289,7 +287,7 @@ impl Run<'_> {
                 pick.successes
             );
             DecisionConfig {
-                threshold_q15: threshold_q15(pick.threshold) as i16,
+                threshold_q15: Q15::from_f64(pick.threshold).header_threshold() as i16,
                 raise_after: pick.raise_after,
                 clear_after: base.decision.clear_after,
             }
@@ -298,7 +296,7 @@ impl Run<'_> {
             let (d, m) = tune_decision(&p, val, self.a.min_raise);
             eprintln!(
                 "  decision tuned on validation sequences: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
-                d.threshold_q15 as f64 / 32768.0,
+                Q15(d.threshold_q15).to_f64(),
                 d.raise_after,
                 d.clear_after,
                 100.0 * m.success_rate.unwrap_or(0.0),
@@ -307,7 +305,7 @@ impl Run<'_> {
             d
         } else {
             DecisionConfig {
-                threshold_q15: threshold_q15(self.a.threshold) as i16,
+                threshold_q15: Q15::from_f64(self.a.threshold).header_threshold() as i16,
                 raise_after: self.a.raise_after.max(1),
                 clear_after: self.a.clear_after.max(1),
             }

@@ -192,6 +192,14 @@ impl StftConfig {
         shape: WindowShape::Rectangular,
     };
 
+    /// No STFT: the setting of a variant without bands (validation does not apply).
+    pub const NONE: StftConfig = StftConfig {
+        window_len: 0,
+        first_bin: 0,
+        n_bins: 0,
+        shape: WindowShape::Rectangular,
+    };
+
     /// Checks `MIN_WINDOW <= window_len <= MAX_WINDOW`, `1 <= n_bins <= MAX_BANDS` and
     /// `first_bin + n_bins - 1 <= window_len / 2`.
     pub const fn validate(&self) -> Result<(), StftError> {

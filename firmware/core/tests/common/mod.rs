@@ -3,7 +3,7 @@
 
 use rand::{Rng, SeedableRng};
 use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
-use slipguard_core::features::stft::{StftConfig, WindowShape};
+use slipguard_core::features::stft::StftConfig;
 use slipguard_core::float::FloatModel;
 
 /// Header of a fingertip-force model as the paper sets it up (16.7 Hz, 0..10 000 mN).
@@ -21,12 +21,7 @@ pub fn config(variant: Variant, hidden: u16, force_diff: bool) -> ModelConfig {
         stft: if variant.uses_bands() {
             StftConfig::PAPER
         } else {
-            StftConfig {
-                window_len: 0,
-                first_bin: 0,
-                n_bins: 0,
-                shape: WindowShape::Rectangular,
-            }
+            StftConfig::NONE
         },
         hidden: [hidden, if dual { hidden } else { 0 }],
         cell_frac_bits: [0, 0],
