@@ -252,7 +252,8 @@ impl ArmedReport {
             m.failures,
             ci(self.detected_rate_ci, true),
             m.detected_with_lead(300.0),
-            m.lead_median_ms().map_or("-".into(), |l| format!("{l:.0} ms")),
+            m.lead_median_ms()
+                .map_or("-".into(), |l| format!("{l:.0} ms")),
             ci(self.lead_median_ms_ci, false),
             m.false_alarm_grasps,
             m.successes,

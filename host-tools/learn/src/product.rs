@@ -313,7 +313,8 @@ pub fn operating_curve(
     for &r in raise_after {
         for &th in thresholds {
             let mut h = *base;
-            h.decision.threshold_q15 = slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
+            h.decision.threshold_q15 =
+                slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
             h.decision.raise_after = r.max(1);
             let grasps: Vec<ArmedGrasp> = runs.iter().map(|w| w.grasp_with(&h)).collect();
             let m = slipguard_data::armed::ArmedMetrics::of(&grasps);
@@ -380,3 +381,52 @@ pub const CURVE_THRESHOLDS: [f64; 19] = [
 ];
 /// raise_after values of the operating curve and of the decision sweep.
 pub const CURVE_RAISE_AFTER: [u8; 4] = [1, 2, 3, 4];
+
+/// 95 % bootstrap interval of one of the paper's metrics, resampling whole trials (a trial's
+/// channel sequences stay together), [`slipguard_data::armed::BOOTSTRAP_RESAMPLES`] times with
+/// a fixed seed.
+pub fn bootstrap_paper(
+    seqs: &[&crate::evaluation::Sequence],
+    preds: &[Vec<slipguard_data::trial::Stability>],
+    seed: u64,
+    stat: impl Fn(&slipguard_data::metrics::Metrics) -> Option<f64>,
+) -> Option<slipguard_data::armed::Interval> {
+    use rand::{Rng, SeedableRng};
+    let mut ids: Vec<&str> = seqs.iter().map(|s| s.cs.trial_id.as_str()).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    if ids.is_empty() {
+        return None;
+    }
+    let by_trial: Vec<Vec<usize>> = ids
+        .iter()
+        .map(|t| {
+            (0..seqs.len())
+                .filter(|&i| seqs[i].cs.trial_id == *t)
+                .collect()
+        })
+        .collect();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut values = Vec::new();
+    for _ in 0..slipguard_data::armed::BOOTSTRAP_RESAMPLES {
+        let mut s = Vec::new();
+        let mut p = Vec::new();
+        for _ in 0..ids.len() {
+            for &i in &by_trial[rng.random_range(0..by_trial.len())] {
+                s.push(seqs[i]);
+                p.push(preds[i].clone());
+            }
+        }
+        if let Some(v) = stat(&crate::evaluation::metrics_of(&s, &p)) {
+            values.push(v);
+        }
+    }
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    Some(slipguard_data::armed::Interval {
+        lo: slipguard_data::metrics::quantile(&values, 0.025),
+        hi: slipguard_data::metrics::quantile(&values, 0.975),
+    })
+}

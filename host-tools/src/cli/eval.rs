@@ -12,7 +12,13 @@ use slipguard_learn::evaluation::{
     row_markdown, sim_force_sequences, sim_suction_sequences,
 };
 
-use super::train::load_real;
+use slipguard_data::Trial;
+use slipguard_data::armed::{ArmedGrasp, ArmedReport};
+use slipguard_data::labels::LabelConfig;
+use slipguard_learn::evaluation::sequences_of;
+use slipguard_learn::product::{self, CurvePoint, OnsetRule};
+
+use super::train::load_real_trials;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -50,6 +56,14 @@ pub struct Args {
     /// Override every model's clear_after.
     #[arg(long)]
     pub clear_after: Option<u8>,
+    /// Write the figures as JSON: `paper.success_rate`, `paper.ahead_drop`, `armed.grasps`,
+    /// `armed.failures`, `armed.detected`, `armed.detected_rate`, `armed.lead_median_ms`,
+    /// `armed.false_alarm_grasps`, `armed.false_alarm_grasp_rate`, `armed.false_alarms_per_min`
+    /// (rates in 0…1), each real-data figure with a `…_ci` [lo, hi] 95 % bootstrap interval
+    /// over trials, and `armed_channel.*` for the per-channel flags. One object for one model,
+    /// an array for several.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
     /// Also write the table (markdown) to this file.
     #[arg(long)]
     pub markdown: Option<PathBuf>,
@@ -269,11 +283,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             }
         }
     }
-    let real = if a.no_real {
+    let real_trials: Vec<Trial> = if a.no_real {
         Vec::new()
     } else {
-        load_real(a.data.as_deref())?.1
+        load_real_trials(a.data.as_deref())?.1
     };
+    // The paper's metrics on the sequences the firmware's model state sees: from each
+    // channel's contact onset (the 16.7 Hz force rule).
+    let force_rule = OnsetRule::of(&slipguard_learn::evaluation::force_config(
+        slipguard_core::blob::Variant::Force,
+        false,
+        1,
+        "",
+        16_700,
+    ));
+    let real = product::cut_to_contact(
+        sequences_of(&real_trials, &LabelConfig::default()),
+        &force_rule,
+    );
     let needs = |u: InputUnit| {
         groups.iter().any(|g| {
             g.members
@@ -282,12 +309,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         })
     };
     let sim_f = if needs(InputUnit::MilliNewton) {
-        sim_force_sequences(a.sim_seed, a.sim_force, 0.3, 16.7)
+        product::cut_to_contact(
+            sim_force_sequences(a.sim_seed, a.sim_force, 0.3, 16.7),
+            &force_rule,
+        )
     } else {
         Vec::new()
     };
     let sim_s = if needs(InputUnit::Counts) {
-        sim_suction_sequences(a.sim_seed, a.sim_suction, 0.3)
+        let rule = OnsetRule::of(&slipguard_learn::evaluation::suction_config(
+            slipguard_core::blob::Variant::Force,
+            false,
+            1,
+            "",
+        ));
+        product::cut_to_contact(sim_suction_sequences(a.sim_seed, a.sim_suction, 0.3), &rule)
     } else {
         Vec::new()
     };
@@ -296,6 +332,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let kinds = [Kind::Float, Kind::Quantized];
     let mut rows = Vec::new();
     let mut notes = Vec::new();
+    let mut products: Vec<Product> = Vec::new();
     for g in &groups {
         let unit = g.members[0].0.model.config.input_unit;
         if unit == InputUnit::MilliNewton {
@@ -320,6 +357,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     &kinds,
                 )?);
                 notes.extend(heldout_lines(g));
+                products.push(product_eval(g, &real_trials, &real, &calib, cv)?);
             }
             if !sim_f.is_empty() {
                 // CV groups: fold 0 stands for the recipe on simulated data.
@@ -361,6 +399,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     let mut text = String::new();
+    if !products.is_empty() {
+        text.push_str(ARMED_HEADER);
+        text.push('\n');
+        for p in &products {
+            text.push_str(&armed_row(p));
+            text.push('\n');
+        }
+        text.push_str(ARMED_NOTE);
+        text.push_str("\n\nThe paper's metrics (per channel, from each channel's contact onset to the end of the 160-step window):\n\n");
+    }
+    for p in &products {
+        if p.in_sample {
+            eprintln!(
+                "note: {} is evaluated on real trials it was trained on (in-sample); its held-out figures come from `slipguard train --cv 5` or a folder of fold checkpoints",
+                p.name
+            );
+        }
+    }
     text.push_str(TABLE_HEADER);
     text.push('\n');
     for r in &rows {
@@ -378,7 +434,253 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         std::fs::write(p, &text).with_context(|| format!("writing {}", p.display()))?;
     }
     if let Some(d) = &a.plots {
+        for p in &products {
+            let slug: String = p
+                .name
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || c == '-' {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect();
+            let path = d.join(format!("operating-curve-{slug}.png"));
+            slipguard::plot::plot_operating_curve(
+                &p.curve,
+                p.shipped.as_ref(),
+                &format!(
+                    "{}: hand level, armed window, {} grasps",
+                    p.name, p.hand.metrics.grasps
+                ),
+                &path,
+            )?;
+        }
         eprintln!("plots in {}", d.display());
     }
+    if let Some(path) = &a.json {
+        let objs: Vec<serde_json::Value> = products
+            .iter()
+            .map(|p| {
+                let q = rows.iter().find(|r| {
+                    r.model == p.name && r.kind == Kind::Quantized && r.data.starts_with("real")
+                });
+                product_json(p, q)
+            })
+            .collect();
+        let v = if objs.len() == 1 {
+            objs.into_iter().next().unwrap_or_default()
+        } else {
+            serde_json::Value::Array(objs)
+        };
+        let text = serde_json::to_string_pretty(&v).context("encoding the figures as JSON")?;
+        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("figures in {}", path.display());
+    }
     Ok(())
+}
+
+/// A model's figures on the real trials as the product is used: the quantized model, hand
+/// level and per channel, in the armed window, with bootstrap intervals; the paper's two
+/// metrics with theirs; and the operating curve.
+pub struct Product {
+    pub name: String,
+    pub in_sample: bool,
+    pub hand: ArmedReport,
+    pub channel: ArmedReport,
+    pub curve: Vec<CurvePoint>,
+    pub shipped: Option<CurvePoint>,
+    pub paper_success_ci: Option<slipguard_data::armed::Interval>,
+    pub paper_ahead_ci: Option<slipguard_data::armed::Interval>,
+}
+
+fn product_eval(
+    g: &Group,
+    trials: &[Trial],
+    real: &[Sequence],
+    calib: &impl Fn(&Checkpoint) -> Vec<Vec<f32>>,
+    cv: bool,
+) -> anyhow::Result<Product> {
+    let cfg = LabelConfig::default();
+    let mut hand: Vec<ArmedGrasp> = Vec::new();
+    let mut channel: Vec<ArmedGrasp> = Vec::new();
+    let mut curve_runs: Vec<(product::WindowedRun, slipguard_core::decision::HandConfig)> =
+        Vec::new();
+    let (mut seqs, mut preds) = (Vec::new(), Vec::new());
+    for (ck, blob) in &g.members {
+        let h = heldout(ck);
+        let test: Vec<&Trial> = trials
+            .iter()
+            .filter(|t| h.as_ref().is_none_or(|h| h.contains(&t.id)))
+            .collect();
+        let bytes = match blob {
+            Some(b) => b.clone(),
+            None => {
+                let c = calib(ck);
+                let c: Vec<&[f32]> = c.iter().map(Vec::as_slice).collect();
+                quantize_model(&ck.model, &c)?
+            }
+        };
+        let aligned = slipguard_core::blob::AlignedBlob::new(&bytes);
+        let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
+            .map_err(|e| anyhow::anyhow!("{}: the model blob does not parse: {e}", g.name))?;
+        let hc = slipguard_core::decision::HandConfig::of(m.config());
+        for w in product::windowed_runs(&m, &test, &cfg)? {
+            let t = test.iter().find(|t| t.id == w.trial).copied();
+            if let Some(t) = t {
+                if let Some(sc) = product::score(t, &w.run, &cfg)? {
+                    hand.push(sc.hand);
+                    channel.extend(sc.channels);
+                }
+            }
+            curve_runs.push((w, hc));
+        }
+        let ts: Vec<&Sequence> = real
+            .iter()
+            .filter(|s| h.as_ref().is_none_or(|h| h.contains(&s.cs.trial_id)))
+            .collect();
+        let p = probabilities(&ck.model, &bytes, Kind::Quantized, &ts)?;
+        let d = DecisionConfig::of(&ck.model.config);
+        preds.extend(p.iter().map(|q| decide(d, q)));
+        seqs.extend(ts);
+    }
+    // The curve: every member's runs, the threshold and hysteresis swept together.
+    let mut curve = Vec::new();
+    for &r in &product::CURVE_RAISE_AFTER {
+        for &th in &product::CURVE_THRESHOLDS {
+            let grasps: Vec<ArmedGrasp> = curve_runs
+                .iter()
+                .map(|(w, hc)| {
+                    let mut h = *hc;
+                    h.decision.threshold_q15 = Q15::from_f64(th).header_threshold() as i16;
+                    h.decision.raise_after = r;
+                    w.grasp_with(&h)
+                })
+                .collect();
+            curve.push(point(th, r, &grasps));
+        }
+    }
+    let shipped = g.members.first().map(|(ck, _)| {
+        let c = &ck.model.config;
+        point(Q15(c.threshold_q15 as i16).to_f64(), c.raise_after, &hand)
+    });
+    Ok(Product {
+        name: g.name.clone(),
+        in_sample: !cv,
+        hand: ArmedReport::of(&hand),
+        channel: ArmedReport::of(&channel),
+        curve,
+        shipped,
+        paper_success_ci: product::bootstrap_paper(&seqs, &preds, 5, |m| m.success_rate),
+        paper_ahead_ci: product::bootstrap_paper(&seqs, &preds, 6, |m| m.ahead_drop_rate),
+    })
+}
+
+fn point(threshold: f64, raise_after: u8, grasps: &[ArmedGrasp]) -> CurvePoint {
+    let m = slipguard_data::armed::ArmedMetrics::of(grasps);
+    CurvePoint {
+        threshold,
+        raise_after,
+        detected_rate: m.detected_rate().unwrap_or(0.0),
+        false_alarm_grasp_rate: m.false_alarm_grasp_rate().unwrap_or(0.0),
+        lead_median_ms: m.lead_median_ms().unwrap_or(0.0),
+        detected_300ms: m.detected_with_lead(300.0),
+        failures: m.failures,
+        false_alarm_grasps: m.false_alarm_grasps,
+        successes: m.successes,
+    }
+}
+
+/// Header of the armed-window table.
+const ARMED_HEADER: &str = "| model | data | level | grasps (fail) | detected | lead median | false-alarm grasps | false alarms / armed min |\n|---|---|---|---|---|---|---|---|";
+
+/// What the armed-window columns mean.
+const ARMED_NOTE: &str = "\nArmed window: from the lift start to the release start (successes, found from the force: \
+docs/labels.md) or to the drop (failures); nothing before the lift or after the release counts. \
+detected = failures with a flag up in their armed window (so before the drop), with the 95 % \
+bootstrap interval over trials; lead = drop − first flag; false-alarm grasps = successes with any \
+flag in their armed window; false alarms per minute of the successes' armed time. hand = the \
+hand flag (the firmware's decision over the channels in contact), channel = each contact channel's \
+own flag scored as a grasp.";
+
+fn armed_row(p: &Product) -> String {
+    let one = |level: &str, r: &ArmedReport| {
+        let m = &r.metrics;
+        let ci = |i: Option<slipguard_data::armed::Interval>| {
+            i.map_or(String::new(), |i| {
+                format!(" [{:.0}–{:.0} %]", 100.0 * i.lo, 100.0 * i.hi)
+            })
+        };
+        format!(
+            "| {} | {} | {level} | {} ({}) | {}/{}{} | {} | {}/{}{} | {:.2} |",
+            p.name,
+            if p.in_sample {
+                "real (all, in-sample)"
+            } else {
+                "real held-out"
+            },
+            m.grasps,
+            m.failures,
+            m.detected,
+            m.failures,
+            ci(r.detected_rate_ci),
+            m.lead_median_ms()
+                .map_or("-".into(), |l| format!("{l:.0} ms")),
+            m.false_alarm_grasps,
+            m.successes,
+            ci(r.false_alarm_grasp_rate_ci),
+            m.false_alarms_per_min().unwrap_or(0.0)
+        )
+    };
+    format!("{}\n{}", one("hand", &p.hand), one("channel", &p.channel))
+}
+
+fn product_json(p: &Product, paper: Option<&Row>) -> serde_json::Value {
+    use serde_json::json;
+    let mut o = serde_json::Map::new();
+    o.insert("model".into(), json!(p.name));
+    o.insert(
+        "data".into(),
+        json!(if p.in_sample {
+            "real (all, in-sample)"
+        } else {
+            "real held-out"
+        }),
+    );
+    let ci = |i: Option<slipguard_data::armed::Interval>| {
+        i.map_or(serde_json::Value::Null, |i| json!([i.lo, i.hi]))
+    };
+    if let Some(r) = paper {
+        o.insert("paper.success_rate".into(), json!(r.metrics.success_rate));
+        o.insert("paper.success_rate_ci".into(), ci(p.paper_success_ci));
+        o.insert("paper.ahead_drop".into(), json!(r.metrics.ahead_drop_rate));
+        o.insert("paper.ahead_drop_ci".into(), ci(p.paper_ahead_ci));
+        o.insert(
+            "paper.false_alarm_rate".into(),
+            json!(r.metrics.false_alarm_rate),
+        );
+    }
+    o.extend(p.hand.to_json("armed"));
+    o.extend(p.channel.to_json("armed_channel"));
+    if let Some(s) = &p.shipped {
+        o.insert("armed.threshold".into(), json!(s.threshold));
+        o.insert("armed.raise_after".into(), json!(s.raise_after));
+    }
+    o.insert(
+        "armed.operating_curve".into(),
+        json!(
+            p.curve
+                .iter()
+                .map(|c| json!({
+                    "threshold": c.threshold,
+                    "raise_after": c.raise_after,
+                    "detected_rate": c.detected_rate,
+                    "false_alarm_grasp_rate": c.false_alarm_grasp_rate,
+                    "lead_median_ms": c.lead_median_ms,
+                }))
+                .collect::<Vec<_>>()
+        ),
+    );
+    serde_json::Value::Object(o)
 }

@@ -567,8 +567,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
                 let qm = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
                     .map_err(|e| anyhow::anyhow!("the quantized model does not parse: {e}"))?;
-                let held_trials: Vec<&Trial> =
-                    real_trials.iter().filter(|t| held.contains(&t.id)).collect();
+                let held_trials: Vec<&Trial> = real_trials
+                    .iter()
+                    .filter(|t| held.contains(&t.id))
+                    .collect();
                 let hand = slipguard_core::decision::HandConfig::of(qm.config());
                 for w in product::windowed_runs(&qm, &held_trials, &LabelConfig::default())? {
                     armed_hand.push(w.grasp_with(&hand));
@@ -592,7 +594,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         if a.cv > 0 {
             let r = slipguard_data::armed::ArmedReport::of(&armed_hand);
-            let line = format!("{name}: {}-fold CV quantized, hand level, armed window: {}", a.cv, r.summary());
+            let line = format!(
+                "{name}: {}-fold CV quantized, hand level, armed window: {}",
+                a.cv,
+                r.summary()
+            );
             eprintln!("{line}");
             summary.push(line);
             let m = metrics_of(&pooled.0, &pooled.1);
