@@ -14,8 +14,6 @@ use slipguard_learn::evaluation::{
     sim_force_sequences, sim_suction_sequences,
 };
 
-use super::train::load_real;
-
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Real data (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
@@ -103,7 +101,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let models = a.models.clone().unwrap_or_else(default_models_dir);
     let hand = read_blob(&models, "hand-force")?;
     let suction = read_blob(&models, "suction")?;
-    let (path, real) = load_real(a.data.as_deref())?;
+    let (path, trials) = super::train::load_real_trials(a.data.as_deref())?;
+    let rule = slipguard_learn::product::OnsetRule::of(&slipguard_learn::evaluation::force_config(
+        slipguard_core::blob::Variant::Force,
+        false,
+        1,
+        "",
+        16_700,
+    ));
+    let real = slipguard_learn::product::cut_to_contact(
+        slipguard_learn::evaluation::sequences_of(
+            &trials,
+            &slipguard_data::labels::LabelConfig::default(),
+        ),
+        &rule,
+    );
+    let armed = super::eval::armed_rows_for_blob("hand-force", &hand, &trials, true)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let plots = (a.out.as_path(), a.plot_count);
     let mut rows = Vec::new();
@@ -120,7 +133,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &real,
         plots,
     )?);
-    let sf = sim_force_sequences(a.sim_seed, a.sim_count, 0.3, 16.7);
+    let sf = slipguard_learn::product::cut_to_contact(
+        sim_force_sequences(a.sim_seed, a.sim_count, 0.3, 16.7),
+        &rule,
+    );
     rows.push(run_blob(
         "hand-force",
         &hand,
@@ -146,6 +162,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "slipguard demo: shipped blobs from {} through the bit-exact core; real data {}",
         models.display(),
         path.display()
+    );
+    println!(
+        "\nAs a grip controller uses the flags (real trials, quantized model, the firmware's decision stage):\n"
+    );
+    println!("{}", super::eval::ARMED_HEADER);
+    println!("{armed}");
+    println!("{}", super::eval::ARMED_NOTE);
+    println!(
+        "\nThe paper's metrics (per channel sequence; success rate = correct steps, ahead-drop = a flag before the drop; false alarms = successes with any flag; lead; event precision / recall):\n"
     );
     println!("{TABLE_HEADER}");
     for r in &rows {

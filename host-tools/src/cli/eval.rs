@@ -593,10 +593,10 @@ fn point(threshold: f64, raise_after: u8, grasps: &[ArmedGrasp]) -> CurvePoint {
 }
 
 /// Header of the armed-window table.
-const ARMED_HEADER: &str = "| model | data | level | grasps (fail) | detected | lead median | false-alarm grasps | false alarms / armed min |\n|---|---|---|---|---|---|---|---|";
+pub const ARMED_HEADER: &str = "| model | data | level | grasps (fail) | detected | lead median | false-alarm grasps | false alarms / armed min |\n|---|---|---|---|---|---|---|---|";
 
 /// What the armed-window columns mean.
-const ARMED_NOTE: &str = "\nArmed window: from the lift start to the release start (successes, found from the force: \
+pub const ARMED_NOTE: &str = "\nArmed window: from the lift start to the release start (successes, found from the force: \
 docs/labels.md) or to the drop (failures); nothing before the lift or after the release counts. \
 detected = failures with a flag up in their armed window (so before the drop), with the 95 % \
 bootstrap interval over trials; lead = drop − first flag; false-alarm grasps = successes with any \
@@ -683,4 +683,38 @@ fn product_json(p: &Product, paper: Option<&Row>) -> serde_json::Value {
         ),
     );
     serde_json::Value::Object(o)
+}
+
+/// The armed-window rows (hand and channel level) of one blob on `trials`, for the demo.
+pub fn armed_rows_for_blob(
+    name: &str,
+    bytes: &[u8],
+    trials: &[Trial],
+    in_sample: bool,
+) -> anyhow::Result<String> {
+    let cfg = LabelConfig::default();
+    let aligned = slipguard_core::blob::AlignedBlob::new(bytes);
+    let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
+        .map_err(|e| anyhow::anyhow!("{name}: the model blob does not parse: {e}"))?;
+    let refs: Vec<&Trial> = trials.iter().collect();
+    let (mut hand, mut channel) = (Vec::new(), Vec::new());
+    for w in product::windowed_runs(&m, &refs, &cfg)? {
+        if let Some(t) = trials.iter().find(|t| t.id == w.trial) {
+            if let Some(sc) = product::score(t, &w.run, &cfg)? {
+                hand.push(sc.hand);
+                channel.extend(sc.channels);
+            }
+        }
+    }
+    let p = Product {
+        name: name.to_string(),
+        in_sample,
+        hand: ArmedReport::of(&hand),
+        channel: ArmedReport::of(&channel),
+        curve: Vec::new(),
+        shipped: None,
+        paper_success_ci: None,
+        paper_ahead_ci: None,
+    };
+    Ok(armed_row(&p))
 }

@@ -176,11 +176,6 @@ fn class_weights(s: &str) -> anyhow::Result<[f32; 2]> {
 }
 
 /// Loads the real trials as sequences, with a clear message when the folder is missing.
-pub fn load_real(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Sequence>)> {
-    let (path, trials) = load_real_trials(path)?;
-    Ok((path, sequences_of(&trials, &LabelConfig::default())))
-}
-
 /// The real trials, annotated with the default labelling rules.
 pub fn load_real_trials(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Trial>)> {
     let path = path.map_or_else(eagle::default_data_dir, Path::to_path_buf);
