@@ -239,7 +239,7 @@ pub fn detect_drop(trial: &Trial, cfg: &LabelConfig) -> DropDetection {
 /// the level's [`RELEASE_HIGH`] share, where it falls below [`RELEASE_GONE`] of the level and
 /// stays there for [`RELEASE_HOLD_SECONDS`]; the release starts right after the last step
 /// before that at or above [`RELEASE_HIGH`] of the level (the start of the final decline).
-/// On the 16 real successes with contact it lands 95–144 steps after the lift start, where
+/// On the 16 real successes with contact it lands 94–143 steps after the lift start, where
 /// the force curves show the hand opening (docs/labels.md).
 pub const RELEASE_GONE: f32 = 0.1;
 /// Share of the hold level the final decline starts from.
