@@ -175,6 +175,8 @@ pub struct Link<P> {
     port: P,
     deframer: Deframer,
     seq: u16,
+    /// Bytes read but not yet decoded (what followed a reply in the same read).
+    pending: std::collections::VecDeque<u8>,
 }
 
 /// A reply or an error frame answering one command.
@@ -191,6 +193,7 @@ impl<P: Read + Write> Link<P> {
             port,
             deframer: Deframer::new(),
             seq: 0x4000,
+            pending: std::collections::VecDeque::new(),
         }
     }
 
@@ -215,24 +218,34 @@ impl<P: Read + Write> Link<P> {
     }
 
     /// Waits for the answer to command `seq` of type `t`, skipping the stream; `None` on
-    /// timeout.
+    /// timeout. The timeout counts from the last byte received (a reply under way is not cut
+    /// off), and the port is read at least once, so a descheduled host does not time out a
+    /// reply that has already arrived.
     fn wait(&mut self, seq: u16, t: u8, timeout: Duration) -> Result<Option<Answer>, UploadError> {
-        let end = Instant::now() + timeout;
+        let mut end = Instant::now() + timeout;
         let mut buf = [0u8; 256];
-        while Instant::now() < end {
-            let n = match self.port.read(&mut buf) {
-                Ok(n) => n,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock
-                    ) =>
-                {
-                    0
+        let mut first = true;
+        while first || Instant::now() < end {
+            first = false;
+            if self.pending.is_empty() {
+                let n = match self.port.read(&mut buf) {
+                    Ok(n) => n,
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock
+                        ) =>
+                    {
+                        0
+                    }
+                    Err(e) => return Err(e.into()),
+                };
+                if n > 0 {
+                    end = Instant::now() + timeout;
                 }
-                Err(e) => return Err(e.into()),
-            };
-            for &b in &buf[..n] {
+                self.pending.extend(&buf[..n]);
+            }
+            while let Some(b) = self.pending.pop_front() {
                 match self.deframer.push_decode(b) {
                     Some(Ok(Frame {
                         msg: Message::Reply(r),

@@ -147,7 +147,11 @@ fn upload_cli_makes_the_new_model_active() {
         })
         .unwrap();
     assert_eq!(last, NEW.len());
-    assert_eq!((u.slot, u.seq, u.resent), (0, 1, 0));
+    assert_eq!((u.slot, u.seq), (0, 1));
+    // The simulated device answers at once, but the test's 20 ms reply timeout can lapse on a
+    // loaded host (the device runs the model in debug code for every frame it receives), so a
+    // few resends may happen; they must stay within the retries.
+    assert!(u.resent <= opts(true).retries, "resent {}", u.resent);
     assert_eq!(u.info.sample_rate_mhz, 40_000);
     let mut dev = link.into_inner();
     let booted = upload::select(&SimFlash::new(&mut dev.s0, &mut dev.s1), &Profile::HAND);
