@@ -334,6 +334,177 @@ pub fn operating_curve(
     out
 }
 
+/// Picks the decision on validation runs. Validation sets are small (a fold's validation
+/// trials hold one or two failures), so the pick maximises a balanced score rather than a hard
+/// bound: the share of failures detected at least 300 ms ahead minus the share of successes
+/// with a false alarm; points over `max_false_alarm_rate` lose a further penalty of their
+/// excess; ties go to fewer false-alarm grasps, then to the threshold nearest 0.5.
+pub fn pick_decision(curve: &[CurvePoint], max_false_alarm_rate: f64) -> Option<CurvePoint> {
+    let score = |p: &CurvePoint| {
+        let det = if p.failures > 0 {
+            p.detected_300ms as f64 / p.failures as f64
+        } else {
+            0.0
+        };
+        det - p.false_alarm_grasp_rate - (p.false_alarm_grasp_rate - max_false_alarm_rate).max(0.0)
+    };
+    curve
+        .iter()
+        .max_by(|a, b| {
+            score(a)
+                .total_cmp(&score(b))
+                .then(b.false_alarm_grasps.cmp(&a.false_alarm_grasps))
+                .then((b.threshold - 0.5).abs().total_cmp(&(a.threshold - 0.5).abs()))
+        })
+        .copied()
+}
+
+/// Where the firmware's model state starts on a channel: its contact onsets by the core's
+/// rule ([`ContactConfig`]) on the model's input scale. Training sequences start at the first
+/// onset and end where that contact ends, so that they start where the firmware's state does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OnsetRule {
+    /// The model's input scaling (raw → Q1.15).
+    pub scale: slipguard_core::sample::InputScale,
+    /// The contact rule on that scale.
+    pub contact: ContactConfig,
+}
+
+impl OnsetRule {
+    /// The rule of a model with these header settings.
+    pub fn of(config: &slipguard_core::blob::ModelConfig) -> Self {
+        Self {
+            scale: slipguard_core::sample::InputScale::of(config),
+            contact: ContactConfig::of(config),
+        }
+    }
+
+    /// The first contact of `samples` (raw sensor units, from the grasp start): its onset
+    /// step and the step at which it ends (exclusive; `samples.len()` if it lasts).
+    pub fn first_contact(&self, samples: &[f32]) -> Option<(usize, usize)> {
+        use slipguard_core::decision::{ContactEdge, ContactState};
+        let mut s = ContactState::new();
+        let mut onset = None;
+        for (t, &x) in samples.iter().enumerate() {
+            let q = self.scale.to_q15(x.round() as i32);
+            match (self.contact.update(&mut s, q), onset) {
+                (ContactEdge::Began, None) => onset = Some(t),
+                (ContactEdge::Ended, Some(on)) => return Some((on, t)),
+                _ => {}
+            }
+        }
+        onset.map(|on| (on, samples.len()))
+    }
+}
+
+/// One point of the operating curve: detection against false-alarm grasps for one decision.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CurvePoint {
+    /// Threshold on the hand's p(unstable), 0…1.
+    pub threshold: f64,
+    /// Consecutive steps at or above it before the hand flag rises.
+    pub raise_after: u8,
+    /// Detected failures / failures.
+    pub detected_rate: f64,
+    /// Successes with a false alarm / successes.
+    pub false_alarm_grasp_rate: f64,
+    /// Median lead of the detected failures, ms (0 with none).
+    pub lead_median_ms: f64,
+    /// Failures detected at least 300 ms ahead.
+    pub detected_300ms: usize,
+    /// Failures scored.
+    pub failures: usize,
+    /// Successes with a false alarm.
+    pub false_alarm_grasps: usize,
+    /// Successes scored.
+    pub successes: usize,
+}
+
+/// A scored run kept for decision sweeps: the run and its armed window.
+#[derive(Debug, Clone)]
+pub struct WindowedRun {
+    /// Trial id.
+    pub trial: String,
+    /// Failure or success.
+    pub failure: bool,
+    /// Armed window `[start, end)`.
+    pub window: (usize, usize),
+    /// Step duration, ms.
+    pub step_ms: f64,
+    /// The run.
+    pub run: HandRun,
+}
+
+impl WindowedRun {
+    /// The grasp scored with the hand flag of `hand` (recomputed from the stored hand p).
+    pub fn grasp_with(&self, hand: &HandConfig) -> ArmedGrasp {
+        ArmedGrasp {
+            trial: self.trial.clone(),
+            failure: self.failure,
+            start: self.window.0,
+            end: self.window.1,
+            flags: self.run.hand_flag_with(hand),
+            step_ms: self.step_ms,
+        }
+    }
+}
+
+/// Runs `model` over the trials with contact and keeps each run with its armed window.
+pub fn windowed_runs(
+    model: &Model<'_>,
+    trials: &[&Trial],
+    cfg: &LabelConfig,
+) -> Result<Vec<WindowedRun>, ArmedError> {
+    let contact = ContactConfig::of(model.config());
+    let hand = HandConfig::of(model.config());
+    let mut out = Vec::new();
+    for t in trials {
+        let Some(window) = armed_window(t, cfg)? else {
+            continue;
+        };
+        out.push(WindowedRun {
+            trial: t.id.clone(),
+            failure: t.outcome == Outcome::Failure,
+            window,
+            step_ms: 1000.0 / t.rate_hz as f64,
+            run: run_trial(model, t, &contact, &hand),
+        });
+    }
+    Ok(out)
+}
+
+/// The operating curve over `thresholds` × `raise_after` (the hand's clear_after and k kept).
+pub fn operating_curve(
+    runs: &[WindowedRun],
+    base: &HandConfig,
+    thresholds: &[f64],
+    raise_after: &[u8],
+) -> Vec<CurvePoint> {
+    let mut out = Vec::new();
+    for &r in raise_after {
+        for &th in thresholds {
+            let mut h = *base;
+            h.decision.threshold_q15 =
+                slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
+            h.decision.raise_after = r.max(1);
+            let grasps: Vec<ArmedGrasp> = runs.iter().map(|w| w.grasp_with(&h)).collect();
+            let m = slipguard_data::armed::ArmedMetrics::of(&grasps);
+            out.push(CurvePoint {
+                threshold: th,
+                raise_after: r,
+                detected_rate: m.detected_rate().unwrap_or(0.0),
+                false_alarm_grasp_rate: m.false_alarm_grasp_rate().unwrap_or(0.0),
+                lead_median_ms: m.lead_median_ms().unwrap_or(0.0),
+                detected_300ms: m.detected_with_lead(300.0),
+                failures: m.failures,
+                false_alarm_grasps: m.false_alarm_grasps,
+                successes: m.successes,
+            });
+        }
+    }
+    out
+}
+
 /// Picks the decision on validation runs: most failures detected at least 300 ms ahead with
 /// at most `max_false_alarm_rate` of the successes flagged; ties go to fewer false-alarm
 /// grasps, then to the higher threshold. `None` if no point meets the false-alarm bound.

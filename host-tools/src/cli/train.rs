@@ -136,9 +136,9 @@ pub struct Args {
     /// With --tune-decision: smallest raise_after the sweep may pick (suppresses start-up blips).
     #[arg(long, default_value_t = 1)]
     pub min_raise: u8,
-    /// With --tune-decision on real trials: the largest share of the validation successes that
-    /// may raise the hand flag in their armed window (lift to release); among the decisions
-    /// that keep it, the one that detects most validation failures ≥ 300 ms ahead is picked.
+    /// With --tune-decision on real trials: the decision maximises (validation failures detected
+    /// ≥ 300 ms ahead) − (validation successes with a hand flag in their armed window), shares,
+    /// with a further penalty on a false-alarm share over this bound.
     #[arg(long, default_value_t = 0.125)]
     pub max_false_alarm_rate: f64,
     /// Train on sequences from the grasp start instead of from each channel's contact onset
@@ -263,13 +263,6 @@ impl Run<'_> {
                     .collect::<Vec<_>>(),
             );
             let pick = product::pick_decision(&curve, self.a.max_false_alarm_rate)
-                .or_else(|| {
-                    curve.iter().copied().min_by(|a, b| {
-                        a.false_alarm_grasps
-                            .cmp(&b.false_alarm_grasps)
-                            .then(b.detected_300ms.cmp(&a.detected_300ms))
-                    })
-                })
                 .ok_or_else(|| anyhow::anyhow!("no validation trial with contact"))?;
             eprintln!(
                 "  decision tuned on {} validation trials (hand level, armed window): threshold {:.2}, raise {}: {}/{} failures ≥ 300 ms ahead, {}/{} successes with a false alarm",
