@@ -2,7 +2,9 @@
 
 use crate::MAX_INPUT;
 use crate::blob::{BlobError, ModelBlob, ModelConfig};
-use crate::decision::{DecisionConfig, DecisionState, p_unstable};
+use crate::decision::{
+    ContactConfig, ContactEdge, ContactState, DecisionConfig, DecisionState, p_unstable,
+};
 use crate::features::stft::StftPlan;
 use crate::features::{FeatureLayout, FeatureState, normalise, raw_features};
 use crate::lstm::{self, LstmState};
@@ -27,6 +29,8 @@ pub struct ChannelState {
     pub lstm: [LstmState; 2],
     /// Flag hysteresis.
     pub decision: DecisionState,
+    /// Contact detection (used by [`Model::step_in_contact`]; kept across a contact restart).
+    pub contact: ContactState,
 }
 
 impl ChannelState {
@@ -40,11 +44,19 @@ impl ChannelState {
                 run_above: 0,
                 run_below: 0,
             },
+            contact: ContactState::new(),
         }
     }
     /// Forgets everything (grasp start).
     pub fn reset(&mut self) {
         *self = Self::new();
+    }
+    /// Restarts the model's state (STFT window, previous sample, LSTM, hysteresis) from zero
+    /// and keeps the contact state: what happens at a contact onset.
+    pub fn restart(&mut self) {
+        let contact = self.contact;
+        *self = Self::new();
+        self.contact = contact;
     }
 }
 
@@ -56,6 +68,16 @@ pub struct StepOutput {
     pub p_unstable_q15: i16,
     /// The flag after threshold and hysteresis.
     pub unstable: bool,
+}
+
+/// What one contact-gated step produces for one channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GatedOutput {
+    /// The contact detector's view of this step.
+    pub contact: ContactEdge,
+    /// The model's output, `None` while the channel is not in contact (the model is not run).
+    pub step: Option<StepOutput>,
 }
 
 impl<'a> Model<'a> {
@@ -109,6 +131,43 @@ impl<'a> Model<'a> {
             p_unstable_q15: p,
             unstable,
         }
+    }
+
+    /// Runs one raw sample through contact detection and, while the channel is in contact, the
+    /// model: at a contact onset the model's state restarts from zero (so the start-up
+    /// transient of a fresh LSTM falls on the onset, where the training sequences start too);
+    /// without contact the model is not run, and the channel's flag is down.
+    pub fn step_in_contact(
+        &self,
+        state: &mut ChannelState,
+        contact: &ContactConfig,
+        raw: i32,
+    ) -> GatedOutput {
+        let x = self.scale.to_q15(raw);
+        let edge = contact.update(&mut state.contact, x);
+        if edge == ContactEdge::Began {
+            state.restart();
+        }
+        if !edge.in_contact() {
+            return GatedOutput {
+                contact: edge,
+                step: None,
+            };
+        }
+        let p = self.p_unstable(state, x);
+        let unstable = self.decision.update(&mut state.decision, p);
+        GatedOutput {
+            contact: edge,
+            step: Some(StepOutput {
+                p_unstable_q15: p,
+                unstable,
+            }),
+        }
+    }
+
+    /// The input scaling in force.
+    pub fn scale(&self) -> &InputScale {
+        &self.scale
     }
 
     /// Features, LSTM(s) and dense layer for one Q1.15 sample; returns p(unstable) in Q0.15.
