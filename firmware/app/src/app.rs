@@ -6,7 +6,8 @@
 //!   profile and the input unit. Any failure puts the app in a system fault: no flag frames,
 //!   a [`Fault`] frame once per second instead, replies with status `NoModel`.
 //! - Flagging is on after boot ("armed"); grasp start resets every channel's state, tares
-//!   (suction profile) and arms; release disarms (p(unstable) still reported, unstable mask 0).
+//!   (suction profile) and arms; release disarms (p(unstable) still reported, unstable mask and
+//!   hand flag 0).
 //! - Every channel goes through contact detection ([`ContactConfig`], from the model by
 //!   default): only a channel in contact runs the model, and its model state restarts from zero
 //!   at each contact onset. A channel without contact is not predicted: p = [`P_NONE`] with its
@@ -15,7 +16,9 @@
 //!   p = [`P_NONE`], flag 0, and their model and contact state is reset when they recover.
 //! - The hand decision ([`HandConfig`]) runs once per frame over the p of the channels in
 //!   contact: the hand flag (status bit [`status::HAND_UNSTABLE`], the board's UNSTABLE line),
-//!   0 while disarmed as the per-channel mask is.
+//!   0 while disarmed as the per-channel mask is. Its hysteresis restarts at grasp start and
+//!   on a reload, as the channels' states do; a channel's fault only takes that channel out of
+//!   the decision (not in contact), the other channels' evidence stands.
 //! - Stream mode (flags, flags + samples, samples): [`App::emit_samples`] frames the model input
 //!   of every channel, with the phase marks (grasp start, lift, release) of the commands handled
 //!   since the previous frame. Samples and marks go out with or without a model, so a hand
