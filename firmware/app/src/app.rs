@@ -312,8 +312,6 @@ impl<'m> App<'m> {
         let Ok(model) = &self.model else {
             return r;
         };
-        // p of each channel in contact, for the hand decision (`None`: not in contact).
-        let mut hand_in = [None; MAX_CHANNELS];
         for c in 0..n {
             let bit = 1u16 << c;
             if input.fault & bit != 0 {
@@ -332,7 +330,6 @@ impl<'m> App<'m> {
             r.contact |= bit;
             let p = out.p_unstable_q15.max(0);
             r.p[c] = p as u16;
-            hand_in[c] = Some(p);
             if out.unstable && self.armed {
                 r.unstable |= bit;
             }
@@ -340,9 +337,11 @@ impl<'m> App<'m> {
         let HandOutput {
             p_unstable_q15,
             unstable,
-        } = self
-            .hand
-            .update(&mut self.hand_state, hand_in[..n].iter().copied());
+        } = self.hand.update(
+            &mut self.hand_state,
+            // Each channel's p, `None` when not in contact (so not predicted on).
+            r.p[..n].iter().map(|&p| (p != P_NONE).then_some(p as i16)),
+        );
         r.hand_p_q15 = p_unstable_q15;
         r.hand_unstable = unstable && self.armed;
         r
