@@ -357,7 +357,7 @@ async fn main(spawner: Spawner) {
         Err(e) => error!("model fault {}: no flags, a fault frame every second", e),
     }
 
-    // UNSTABLE line to the hand controller: high while any channel is unstable.
+    // UNSTABLE line to the hand controller: high while the hand flag is up (status bit HAND_UNSTABLE).
     let mut unstable_pin = Output::new(p.PB12, Level::Low, Speed::VeryHigh);
     let mut led = Output::new(p.PC12, Level::Low, Speed::Low);
 
@@ -486,7 +486,8 @@ async fn main(spawner: Spawner) {
                 if let Some(f) = app.emit(&r, late) {
                     send(app, &f);
                 }
-                if r.unstable != 0 {
+                // The UNSTABLE line is the hand flag (status bit HAND_UNSTABLE of the frame).
+                if r.hand_unstable {
                     unstable_pin.set_high();
                 } else {
                     unstable_pin.set_low();

@@ -63,6 +63,7 @@ extern "C" {
 #define SG_ST_ARMED 0x01u
 #define SG_ST_LATE 0x02u
 #define SG_ST_TARED 0x04u
+#define SG_ST_HAND_UNSTABLE 0x08u /* the hand flag (the UNSTABLE line); 0 while not armed */
 
 /* Phase marks of a samples frame: the commands handled since the previous frame. */
 #define SG_MARK_GRASP_START 0x01u
@@ -218,6 +219,21 @@ static inline uint32_t sg_crc32(const uint8_t *data, size_t len) {
 
 /* COBS-decodes `len` bytes (no 0x00 delimiter) into `out` (capacity `cap`). Returns the decoded
  * length, or -SG_E_COBS (a zero byte or a code running past the end) / -SG_E_TOO_LONG. */
+/* Whether the hand flag of a flag frame is up. */
+static inline int sg_flags_hand_unstable(const sg_flags *f) {
+    return (f->status & SG_ST_HAND_UNSTABLE) != 0;
+}
+
+/* Contact mask of a flag frame: bit c set while channel c is in contact, i.e. predicted on. The
+ * device sends SG_P_NONE exactly for the channels faulted (fault bit set) or out of contact. */
+static inline uint16_t sg_flags_contact(const sg_flags *f) {
+    uint16_t m = 0;
+    unsigned c;
+    for (c = 0; c < f->channels && c < SG_MAX_CHANNELS; c++)
+        if (f->p[c] != SG_P_NONE && !(f->fault & (1u << c))) m = (uint16_t)(m | (1u << c));
+    return m;
+}
+
 static inline int sg_cobs_decode(const uint8_t *in, size_t len, uint8_t *out, size_t cap) {
     size_t i = 0, o = 0;
     while (i < len) {

@@ -70,7 +70,7 @@ fn line(f: &Frame) -> String {
                 .map(|p| p.to_string())
                 .collect();
             format!(
-                "flags seq={s} t={} st={} n={} unst={} fault={} ovr={} skip={} p={}",
+                "flags seq={s} t={} st={} n={} unst={} fault={} ovr={} skip={} p={} hand={} contact={}",
                 x.timestamp_us,
                 x.status,
                 x.channels,
@@ -78,7 +78,9 @@ fn line(f: &Frame) -> String {
                 x.fault,
                 x.overruns,
                 x.skipped,
-                p.join(",")
+                p.join(","),
+                x.hand_unstable() as u8,
+                x.contact()
             )
         }
         Message::Samples(x) => {
@@ -204,9 +206,10 @@ fn hex(s: &str) -> Vec<u8> {
         .collect()
 }
 
-/// The wire bytes pinned by `slipguard_core::protocol::tests::golden_bytes` and
-/// `golden_bytes_samples_and_upload` (and quoted in docs/protocol.md).
-const GOLDEN: [&str; 13] = [
+/// The wire bytes pinned by `slipguard_core::protocol::tests::golden_bytes`,
+/// `golden_bytes_samples_and_upload` and `golden_bytes_hand_flag` (and quoted in
+/// docs/protocol.md).
+const GOLDEN: [&str; 14] = [
     "080101341240420f04010402020402010101027805ff7fffff06403e8f902000",
     "0401100709efbeadde82cc4de800",
     "0401130809cd4c02038eaa754500",
@@ -220,6 +223,7 @@ const GOLDEN: [&str; 13] = [
     "0401180d028001010653474d4201020209c777582428bd968500",
     "0401190e05080d8c1400",
     "04019805020d0301040101020101050b7aa05600",
+    "040101420480841e040904010208010102020d0852a00fffffffffcba393b400",
 ];
 
 #[test]
@@ -227,7 +231,7 @@ fn golden_frames_field_by_field() {
     let stream: Vec<u8> = GOLDEN.iter().flat_map(|h| hex(h)).collect();
     let c = run_c(&[], &stream);
     // Independent expectations, from docs/protocol.md's field tables.
-    let want = "flags seq=4660 t=1000000 st=1 n=4 unst=2 fault=4 ovr=1 skip=0 p=120,32767,65535,16384\n\
+    let want = "flags seq=4660 t=1000000 st=1 n=4 unst=2 fault=4 ovr=1 skip=0 p=120,32767,65535,16384 hand=0 contact=11\n\
                 ping seq=7 token=3735928559\n\
                 set_threshold seq=8 thr=19661 raise=2 clear=3\n\
                 grasp_start seq=9\n\
@@ -239,7 +243,8 @@ fn golden_frames_field_by_field() {
                 upload_begin seq=12 size=80444 crc=2309737967\n\
                 upload_chunk seq=13 offset=128 len=8 crc=609777607\n\
                 upload_commit seq=14\n\
-                reply seq=5 type=152 rseq=13 status=1 code=4 detail=0 slot=0 value=256\n";
+                reply seq=5 type=152 rseq=13 status=1 code=4 detail=0 slot=0 value=256\n\
+                flags seq=66 t=2000000 st=9 n=4 unst=1 fault=8 ovr=0 skip=2 p=21000,4000,65535,65535 hand=1 contact=3\n";
     assert_eq!(c, want);
     assert_eq!(rust_lines(&stream), want);
     // Encoding commands and the CRC check value.

@@ -6,9 +6,19 @@
 //!   profile and the input unit. Any failure puts the app in a system fault: no flag frames,
 //!   a [`Fault`] frame once per second instead, replies with status `NoModel`.
 //! - Flagging is on after boot ("armed"); grasp start resets every channel's state, tares
-//!   (suction profile) and arms; release disarms (p(unstable) still reported, unstable mask 0).
-//! - Faulted channels (see [`crate::fault`]) are not stepped: p = [`P_NONE`], flag 0, and
-//!   their model state is reset when they recover.
+//!   (suction profile) and arms; release disarms (p(unstable) still reported, unstable mask and
+//!   hand flag 0).
+//! - Every channel goes through contact detection ([`ContactConfig`], from the model by
+//!   default): only a channel in contact runs the model, and its model state restarts from zero
+//!   at each contact onset. A channel without contact is not predicted: p = [`P_NONE`] with its
+//!   fault bit clear, flag 0.
+//! - Faulted channels (see [`crate::fault`]) are not stepped and count as not in contact:
+//!   p = [`P_NONE`], flag 0, and their model and contact state is reset when they recover.
+//! - The hand decision ([`HandConfig`]) runs once per frame over the p of the channels in
+//!   contact: the hand flag (status bit [`status::HAND_UNSTABLE`], the board's UNSTABLE line),
+//!   0 while disarmed as the per-channel mask is. Its hysteresis restarts at grasp start and
+//!   on a reload, as the channels' states do; a channel's fault only takes that channel out of
+//!   the decision (not in contact), the other channels' evidence stands.
 //! - Stream mode (flags, flags + samples, samples): [`App::emit_samples`] frames the model input
 //!   of every channel, with the phase marks (grasp start, lift, release) of the commands handled
 //!   since the previous frame. Samples and marks go out with or without a model, so a hand
@@ -21,7 +31,9 @@ use crate::frontend::FrameInput;
 use crate::profile::Profile;
 use crate::schedule::frame_timestamp_us;
 use slipguard_core::blob::{BlobError, InputUnit};
-use slipguard_core::decision::DecisionConfig;
+use slipguard_core::decision::{
+    ContactConfig, DecisionConfig, DecisionState, HandConfig, HandOutput,
+};
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::protocol::{
     Command, DecodeError, Error, Fault, Flags, Frame, Info, Message, P_NONE, Reply, ReplyBody,
@@ -91,7 +103,16 @@ pub struct FrameResult {
     pub unstable: u16,
     /// Fault mask.
     pub fault: u16,
-    /// p(unstable) per channel or [`P_NONE`].
+    /// Contact mask: bit c set while channel c is in contact (and so predicted on); a faulted
+    /// channel is not in contact.
+    pub contact: u16,
+    /// The hand flag (already false when disarmed): what the UNSTABLE line and status bit
+    /// [`status::HAND_UNSTABLE`] carry.
+    pub hand_unstable: bool,
+    /// The hand's p(unstable), Q0.15 (0 with no channel in contact or without a model).
+    pub hand_p_q15: i16,
+    /// p(unstable) per channel, or [`P_NONE`] for a channel not predicted on (faulted, not in
+    /// contact, or no model).
     pub p: [u16; MAX_CHANNELS],
     /// Model input per channel (the profile's unit, after tare): what `Model::step` received,
     /// or would have for a faulted channel or without a model.
@@ -103,6 +124,12 @@ pub struct App<'m> {
     profile: Profile,
     model: Result<Model<'m>, SystemFault>,
     states: [ChannelState; MAX_CHANNELS],
+    /// When a channel is in contact (the model's default rule unless changed).
+    contact: ContactConfig,
+    /// The hand decision (its threshold and hysteresis are the model's, as the channels').
+    hand: HandConfig,
+    /// The hand flag's hysteresis state.
+    hand_state: DecisionState,
     /// Channels whose state must be reset before their next step (after a fault).
     stale: u16,
     armed: bool,
@@ -136,10 +163,32 @@ impl<'m> App<'m> {
     /// Validates `blob` against `profile` and starts armed (or in a system fault).
     pub fn new(profile: Profile, blob: &'m [u8]) -> Self {
         let model = check_model(&profile, blob);
+        let (contact, hand) = match &model {
+            Ok(m) => (ContactConfig::of(m.config()), HandConfig::of(m.config())),
+            // Never used without a model: no channel is stepped.
+            Err(_) => (
+                ContactConfig {
+                    on_q15: i16::MAX,
+                    on_after: u8::MAX,
+                    off_after: 1,
+                },
+                HandConfig {
+                    k: 1,
+                    decision: DecisionConfig {
+                        threshold_q15: i16::MAX,
+                        raise_after: u8::MAX,
+                        clear_after: 1,
+                    },
+                },
+            ),
+        };
         Self {
             profile,
             model,
             states: [const { ChannelState::new() }; MAX_CHANNELS],
+            contact,
+            hand,
+            hand_state: DecisionState::default(),
             stale: 0,
             armed: true,
             tared: false,
@@ -199,6 +248,21 @@ impl<'m> App<'m> {
         }
     }
 
+    /// The contact rule in force.
+    pub fn contact_config(&self) -> ContactConfig {
+        self.contact
+    }
+
+    /// Replaces the contact rule (from the next frame; channels keep their contact state).
+    pub fn set_contact_config(&mut self, contact: ContactConfig) {
+        self.contact = contact;
+    }
+
+    /// The hand decision in force.
+    pub fn hand_config(&self) -> HandConfig {
+        self.hand
+    }
+
     /// Whether flagging is on.
     pub fn armed(&self) -> bool {
         self.armed
@@ -234,6 +298,9 @@ impl<'m> App<'m> {
             index: input.index,
             unstable: 0,
             fault: input.fault,
+            contact: 0,
+            hand_unstable: false,
+            hand_p_q15: 0,
             p: [P_NONE; MAX_CHANNELS],
             value: [0; MAX_CHANNELS],
         };
@@ -253,20 +320,38 @@ impl<'m> App<'m> {
             }
             let st = &mut self.states[c];
             if self.stale & bit != 0 {
+                // Back from a fault: out of contact, so the model restarts at its next onset.
                 st.reset();
                 self.stale &= !bit;
             }
-            let out = model.step(st, r.value[c]);
-            r.p[c] = out.p_unstable_q15.max(0) as u16;
+            let Some(out) = model.step_in_contact(st, &self.contact, r.value[c]).step else {
+                continue;
+            };
+            r.contact |= bit;
+            let p = out.p_unstable_q15.max(0);
+            r.p[c] = p as u16;
             if out.unstable && self.armed {
                 r.unstable |= bit;
             }
         }
+        let HandOutput {
+            p_unstable_q15,
+            unstable,
+        } = self.hand.update(
+            &mut self.hand_state,
+            // Each channel's p, `None` when not in contact (so not predicted on).
+            r.p[..n].iter().map(|&p| (p != P_NONE).then_some(p as i16)),
+        );
+        r.hand_p_q15 = p_unstable_q15;
+        r.hand_unstable = unstable && self.armed;
         r
     }
 
-    fn status_bits(&self, late: bool) -> u8 {
+    fn status_bits(&self, late: bool, hand_unstable: bool) -> u8 {
         let mut st = 0;
+        if hand_unstable {
+            st |= status::HAND_UNSTABLE;
+        }
         if self.armed {
             st |= status::ARMED;
         }
@@ -290,7 +375,7 @@ impl<'m> App<'m> {
             seq: self.next_seq(),
             msg: Message::Samples(Samples {
                 timestamp_us: frame_timestamp_us(r.index, self.rate_mhz()),
-                status: self.status_bits(late),
+                status: self.status_bits(late, r.hand_unstable),
                 marks: self.marks,
                 channels: self.profile.channels.min(MAX_CHANNELS) as u8,
                 unit: self.profile.unit as u8,
@@ -331,7 +416,7 @@ impl<'m> App<'m> {
         if !self.stream.flags() {
             return None;
         }
-        let st = self.status_bits(late);
+        let st = self.status_bits(late, r.hand_unstable);
         Some(Frame {
             seq: self.next_seq(),
             msg: Message::Flags(Flags {
@@ -476,6 +561,7 @@ impl<'m> App<'m> {
                 for s in &mut self.states {
                     s.reset();
                 }
+                self.hand_state = DecisionState::default();
                 self.stale = 0;
                 self.armed = true;
                 (ReplyStatus::Ok, ReplyBody::GraspStarted)
@@ -494,11 +580,14 @@ impl<'m> App<'m> {
                     && raise_after >= 1
                     && clear_after >= 1;
                 if ok && let Ok(m) = &mut self.model {
-                    m.set_decision(DecisionConfig {
+                    let d = DecisionConfig {
                         threshold_q15: threshold_q15 as i16,
                         raise_after,
                         clear_after,
-                    });
+                    };
+                    // One decision for the channels and the hand.
+                    m.set_decision(d);
+                    self.hand.decision = d;
                 }
                 let d = self.decision();
                 (

@@ -194,7 +194,19 @@ fn replay_of_a_real_trial_answers_every_command_and_flags_the_drop() {
         let edge = (149..153).contains(&i) || (170..182).contains(&i);
         if !edge {
             assert_eq!(f.fault, if open { 1 << 14 } else { 0 }, "frame {i}");
-            assert_eq!(f.p[14] == P_NONE, open, "frame {i}");
+            // Not predicted while faulted (nor while out of contact, fault bit clear).
+            if open {
+                assert_eq!(f.p[14], P_NONE, "frame {i}");
+            }
+        }
+        // P_NONE exactly for the channels faulted or out of contact; the hand flag only with
+        // a channel in contact.
+        for c in 0..16 {
+            let none = f.p[c] == P_NONE;
+            assert_eq!(!none, f.contact() & (1 << c) != 0, "frame {i} ch {c}");
+        }
+        if f.hand_unstable() {
+            assert_ne!(f.contact(), 0, "frame {i}");
         }
         if i >= 300 {
             assert_eq!(f.unstable, 0);
@@ -313,6 +325,9 @@ fn scans(level: impl Fn(usize, usize) -> u16, frames: usize) -> Vec<FrameInput> 
 fn faulted_channels_are_masked_and_not_predicted() {
     let g = golden();
     let mut app = App::new(Profile::HAND, g.as_bytes());
+    // Loaded frames before contact begins (3 at 16.7 Hz).
+    let on = app.contact_config().on_after as usize;
+    let mut p0 = Vec::new();
     // Channel 2 disconnected from frame 5 to 9, channel 7 saturated throughout.
     let inputs = scans(
         |i, c| match c {
@@ -331,11 +346,27 @@ fn faulted_channels_are_masked_and_not_predicted() {
             panic!()
         };
         let i = inp.index as usize;
-        let ch2 = (5..10 + Profile::HAND.fault_hold_periods as usize).contains(&i);
+        let back = 10 + Profile::HAND.fault_hold_periods as usize;
+        let ch2 = (5..back).contains(&i);
         assert_eq!(f.fault & (1 << 2) != 0, ch2, "frame {i}");
-        assert_eq!(f.p[2] == P_NONE, ch2, "frame {i}");
+        // Not predicted while faulted, nor (out of contact) until the channel's contact begins
+        // again `on` loaded frames after the fault cleared, as at boot.
+        let none2 = i + 1 < on || (5..back + on - 1).contains(&i);
+        assert_eq!(f.p[2] == P_NONE, none2, "frame {i}");
+        // Back in contact, channel 2 gives what channel 0 (same input) gave at its own onset:
+        // the model restarted from zero.
+        if i >= back + on - 1 {
+            assert_eq!(f.p[2], p0[i - back], "frame {i}");
+        }
         assert!(f.fault & (1 << 7) != 0 && f.p[7] == P_NONE && f.unstable & (1 << 7) == 0);
-        assert!(f.p[0] <= 32767);
+        assert_eq!(
+            f.contact() & (1 << 7),
+            0,
+            "a faulted channel is not in contact"
+        );
+        assert_eq!(f.p[0] <= 32767, i + 1 >= on, "frame {i}");
+        assert_eq!(f.contact() & 1 != 0, i + 1 >= on, "frame {i}");
+        p0.push(f.p[0]);
     }
 }
 

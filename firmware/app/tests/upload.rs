@@ -9,8 +9,8 @@ use slipguard_app::upload::{
 };
 use slipguard_core::blob::{AlignedBlob, CRC32};
 use slipguard_core::protocol::{
-    self, Chunk, Command, Deframer, Frame, MAX_CHUNK, MAX_WIRE, Message, ReplyBody, ReplyStatus,
-    upload_code,
+    self, Chunk, Command, Deframer, Frame, MAX_CHUNK, MAX_WIRE, Message, P_NONE, ReplyBody,
+    ReplyStatus, upload_code,
 };
 
 /// 16.7 Hz hand model (the factory model here).
@@ -641,7 +641,25 @@ fn upload_during_a_replayed_trial_then_flags_from_the_new_model() {
     let old_ref = run(FACTORY, FACTORY).0;
     assert_eq!(after(&field).len(), 10);
     assert_eq!(after(&field), after(&new_ref), "flags from the new model");
-    assert_ne!(after(&field), after(&old_ref), "not from the old one");
+    // The trial is over by then: every channel is unloaded, out of contact and so not run
+    // (p none, fault clear), whichever model is loaded; the old and the new model's frames
+    // differ before, while the hand holds the object.
+    assert_eq!(after(&field), after(&old_ref));
+    assert!(after(&field).iter().flatten().all(|&p| p == P_NONE));
+    let held = |v: &[Frame]| -> Vec<[u16; 16]> {
+        v.iter()
+            .filter_map(|f| match f.msg {
+                Message::Flags(x) => Some(x.p),
+                _ => None,
+            })
+            .take(300)
+            .collect()
+    };
+    assert_ne!(
+        held(&new_ref),
+        held(&old_ref),
+        "the two models differ in contact"
+    );
     // The sample stream went on through the upload, with its three marks.
     let marks: Vec<u8> = field
         .iter()

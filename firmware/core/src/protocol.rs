@@ -82,6 +82,10 @@ pub mod status {
     pub const LATE: u8 = 1 << 1;
     /// The tare of the suction profile is in force.
     pub const TARED: u8 = 1 << 2;
+    /// The hand flag: the hand-level decision over the channels in contact
+    /// (`decision::HandConfig`) is up. Always 0 while not armed. The board's UNSTABLE line
+    /// carries the same bit.
+    pub const HAND_UNSTABLE: u8 = 1 << 3;
 }
 
 /// One frame of per-channel results (type 0x01).
@@ -110,6 +114,25 @@ impl Flags {
     /// Body length for `channels` channels.
     pub const fn body_len(channels: usize) -> usize {
         14 + 2 * channels
+    }
+
+    /// Whether the hand flag ([`status::HAND_UNSTABLE`]) is up.
+    pub const fn hand_unstable(&self) -> bool {
+        self.status & status::HAND_UNSTABLE != 0
+    }
+
+    /// Bit c set: channel c is in contact, i.e. predicted on. A device with a model sends
+    /// [`P_NONE`] exactly for the channels that are faulted or not in contact, so the mask is
+    /// the channels below N whose fault bit is clear and whose p is not [`P_NONE`].
+    pub fn contact(&self) -> u16 {
+        let n = (self.channels as usize).min(MAX_CHANNELS);
+        let mut m = 0;
+        for (c, &p) in self.p[..n].iter().enumerate() {
+            if p != P_NONE && self.fault & (1 << c) == 0 {
+                m |= 1 << c;
+            }
+        }
+        m
     }
 }
 
@@ -1228,6 +1251,52 @@ mod tests {
                 p,
             }),
         }
+    }
+
+    /// The hand-flag example of docs/protocol.md: hand flag up (from channel 0), channel 2 out
+    /// of contact (p none, fault clear), channel 3 faulted.
+    fn hand_flags_example() -> Frame {
+        let mut p = [P_NONE; MAX_CHANNELS];
+        p[0] = 21000;
+        p[1] = 4000;
+        Frame {
+            seq: 0x0042,
+            msg: Message::Flags(Flags {
+                timestamp_us: 2_000_000,
+                status: status::ARMED | status::HAND_UNSTABLE,
+                channels: 4,
+                unstable: 0b0001,
+                fault: 0b1000,
+                overruns: 0,
+                skipped: 2,
+                p,
+            }),
+        }
+    }
+
+    /// Pins the hand flag's bytes (computed independently: Python's zlib.crc32 and a
+    /// hand-written COBS encoder) and the contact mask a decoder derives from them.
+    #[test]
+    fn golden_bytes_hand_flag() {
+        let f = hand_flags_example();
+        let w = wire(&f);
+        assert_eq!(
+            hex(&w),
+            "040101420480841e040904010208010102020d0852a00fffffffffcba393b400"
+        );
+        let Message::Flags(d) = decode(&w).unwrap().msg else {
+            panic!("not flags")
+        };
+        assert_eq!(decode(&w).unwrap(), f);
+        assert_eq!(d.status, 0x09, "status byte: ARMED | HAND_UNSTABLE");
+        assert!(d.hand_unstable());
+        assert_eq!(d.contact(), 0b0011);
+        // The v1 example without the bit: hand flag down; contact = p valid and fault clear.
+        let Message::Flags(old) = flags_example().msg else {
+            unreachable!()
+        };
+        assert!(!old.hand_unstable());
+        assert_eq!(old.contact(), 0b1011);
     }
 
     /// Pins the exact bytes of one frame of each kind (the C decoder and docs/protocol.md quote
