@@ -316,7 +316,7 @@ pub struct Outcome {
     pub final_grip_n: f64,
     /// Initial grip, N.
     pub initial_grip_n: f64,
-    /// Flag frames received with any channel unstable.
+    /// Flag frames received with the hand flag up (armed).
     pub unstable_frames: u32,
     /// Flag frames received.
     pub flag_frames: u32,
@@ -403,11 +403,13 @@ pub fn run_trial(
                     match f.msg {
                         Message::Flags(fl) => {
                             out.flag_frames += 1;
-                            if fl.unstable != 0 && fl.status & status::ARMED != 0 {
+                            // The controller acts on the hand flag (the firmware's decision
+                            // over the channels in contact), in its armed window: from its lift
+                            // command on (T_LIFT_S), as docs/labels.md defines it.
+                            if fl.hand_unstable() && fl.status & status::ARMED != 0 {
                                 out.unstable_frames += 1;
-                                // Flags count from grasp start (the fingers' contact) on.
                                 if grip_override.is_none()
-                                    && t >= T_CONTACT_S + ctl.settle_s
+                                    && t >= T_LIFT_S.max(T_CONTACT_S + ctl.settle_s)
                                     && out
                                         .raise_times
                                         .last()
@@ -496,7 +498,11 @@ pub fn run_trial(
                         seq: input.index as u16,
                         msg: Message::Flags(protocol::Flags {
                             timestamp_us: 0,
-                            status: status::ARMED,
+                            status: if unstable {
+                                status::ARMED | status::HAND_UNSTABLE
+                            } else {
+                                status::ARMED
+                            },
                             channels: 16,
                             unstable: if unstable { 1 } else { 0 },
                             fault: 0,

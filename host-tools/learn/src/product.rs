@@ -354,7 +354,11 @@ pub fn pick_decision(curve: &[CurvePoint], max_false_alarm_rate: f64) -> Option<
             score(a)
                 .total_cmp(&score(b))
                 .then(b.false_alarm_grasps.cmp(&a.false_alarm_grasps))
-                .then((b.threshold - 0.5).abs().total_cmp(&(a.threshold - 0.5).abs()))
+                .then(
+                    (b.threshold - 0.5)
+                        .abs()
+                        .total_cmp(&(a.threshold - 0.5).abs()),
+                )
         })
         .copied()
 }
