@@ -915,8 +915,15 @@ mod arm {
         // `h[..2·h_chunks]` (aligned `[u32]`s, exactly those lengths) once per block, and
         // writes the 2·rows words of `out` (exclusively borrowed, the layout of [[i32; 2]],
         // rows a multiple of 4); the chunk counts ≤ their unrolled copies keep the computed
-        // jumps inside the kernel. It saves and restores r4-r11, lr and sp.
-        unsafe { lstm_block_kernel(&p) };
+        // jumps inside the kernels, and the full-h kernel runs only at exactly
+        // MAX_BLOCK_H_CHUNKS h chunks. Both save and restore r4-r11, lr and sp.
+        unsafe {
+            if p.h_chunks == super::MAX_BLOCK_H_CHUNKS {
+                lstm_block_kernel_full(&p);
+            } else {
+                lstm_block_kernel(&p);
+            }
+        }
         true
     }
 
@@ -1003,6 +1010,185 @@ mod arm {
                 "pop {{r4-r11, lr}}",
                 xchunks = const super::MAX_BLOCK_X_CHUNKS,
                 hchunks = const super::MAX_BLOCK_H_CHUNKS,
+                inout("r0") p as *const BlockParams => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+    }
+
+    /// One chunk of the full-shape kernel at chunk position `slg_p` (an assembler symbol):
+    /// activations from the stack copy at `sp + 8·slg_p`, weights at `r0 + 16·slg_p`, six
+    /// single LDRs in a row (pipelined: 7 cycles for 6 words) then the 12 MAC instructions of
+    /// `BLOCK_CHUNK`; `$first` starts the a accumulators (r4, r7) with SMUAD.
+    macro_rules! FULL_CHUNK {
+        ($a0:literal, $a1:literal) => {
+            concat!(
+                "ldr.w r8, [sp, #(8 * slg_p)]
+                 ldr.w r9, [sp, #(8 * slg_p + 4)]
+                 ldr.w r10, [r0, #(16 * slg_p)]
+                 ldr.w r11, [r0, #(16 * slg_p + 4)]
+                 ldr.w r12, [r0, #(16 * slg_p + 8)]
+                 ldr.w lr, [r0, #(16 * slg_p + 12)]
+                 smlald r2, r3, r10, r8
+                 sxtb16 r10, r10
+                 ",
+                $a0,
+                "
+                 smlald r2, r3, r11, r9
+                 sxtb16 r11, r11
+                 smlad r4, r11, r9, r4
+                 smlald r5, r6, r12, r8
+                 sxtb16 r12, r12
+                 ",
+                $a1,
+                "
+                 smlald r5, r6, lr, r9
+                 sxtb16 lr, lr
+                 smlad r7, lr, r9, r7
+                 .set slg_p, slg_p + 1"
+            )
+        };
+        (first) => {
+            FULL_CHUNK!("smuad r4, r10, r8", "smuad r7, r12, r8")
+        };
+        () => {
+            FULL_CHUNK!("smlad r4, r10, r8, r4", "smlad r7, r12, r8, r7")
+        };
+    }
+
+    /// Words of the full-h kernel's stack copy of the activations (x then h, x right-aligned
+    /// to chunk position MAX_BLOCK_X_CHUNKS).
+    const FULL_ACT_WORDS: usize = 2 * (super::MAX_BLOCK_X_CHUNKS + super::MAX_BLOCK_H_CHUNKS);
+    /// Bytes of one `FULL_CHUNK`.
+    const FULL_CHUNK_BYTES: usize = 72;
+    // The copy moves h 8 words (4 chunks) per pass; the h part has a first chunk.
+    const _: () =
+        assert!(super::MAX_BLOCK_H_CHUNKS.is_multiple_of(4) && super::MAX_BLOCK_H_CHUNKS >= 1);
+
+    /// The blocked kernel for a full h part (MAX_BLOCK_H_CHUNKS chunks: the paper's models,
+    /// H = 128) and any x part up to MAX_BLOCK_X_CHUNKS: the activations are copied once to
+    /// the stack, x ending where h starts, and read at fixed offsets from sp, so r1 holds the
+    /// output pointer and each chunk's six loads pipeline (19 cycles per 16 MACs). Chunk
+    /// position p reads its activations at `sp + 8·p` and its weights at `r0 + 16·p`, with r0
+    /// = the block's weights − 16·(MAX_BLOCK_X_CHUNKS − x chunks); the x part is entered at
+    /// its first chunk (a computed jump, the only one besides none for the h part).
+    ///
+    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_blocks`] checks,
+    /// with exactly MAX_BLOCK_H_CHUNKS h chunks.
+    #[inline(never)]
+    unsafe fn lstm_block_kernel_full(p: &BlockParams) {
+        // Registers in the chunks: r0 the block's weights (offset as above), r1 output
+        // pointer, r2-r7 accumulators, r8-r9 activation words, r10-r12 and lr weight words.
+        // Stack: [sp] the activations (FULL_ACT_WORDS words), then out_end, the x entry, the
+        // bytes per block.
+        // SAFETY: see the caller; every memory access is inside the buffers `p` describes or
+        // the kernel's own stack frame (x's copy starts at chunk position MAX − x chunks ≥ 0).
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "sub sp, sp, #{frame}",
+                "ldr r1, [r0, #16]",
+                "str r1, [sp, #{end_at}]",
+                // x entry: the end of the unrolled x chunks - x chunks · 72 (ADR on a word
+                // boundary, as in `lstm_kernel`); bytes per block 16 · (x + h chunks).
+                "ldr r3, [r0, #20]",
+                "movs r4, #{chunk_bytes}",
+                ".p2align 2",
+                "adr.w r5, 12f",
+                "mls r5, r3, r4, r5",
+                "orr r5, r5, #1",
+                "str r5, [sp, #{entry_at}]",
+                "lsls r4, r3, #4",
+                "add.w r4, r4, #{h_bytes}",
+                "str r4, [sp, #{adv_at}]",
+                // Copy x (2 words per chunk) to chunk position MAX - x chunks (r2), h after it.
+                "rsb r2, r3, #{xmax}",
+                "add.w r12, sp, r2, lsl #3",
+                "ldr r1, [r0, #4]",
+                "cbz r3, 13f",
+                "14:",
+                "ldmia r1!, {{r4, r5}}",
+                "stmia r12!, {{r4, r5}}",
+                "subs r3, r3, #1",
+                "bne 14b",
+                "13:",
+                "add.w r12, sp, #{h_at}",
+                "ldr r1, [r0, #8]",
+                "movs r3, #{hpasses}",
+                "10:",
+                "ldmia r1!, {{r4-r11}}",
+                "stmia r12!, {{r4-r11}}",
+                "subs r3, r3, #1",
+                "bne 10b",
+                "ldr r1, [r0, #12]",
+                "ldr r0, [r0, #0]",
+                "sub.w r0, r0, r2, lsl #4",
+                "movs r2, #0",
+                "movs r3, #0",
+                "movs r4, #0",
+                "movs r5, #0",
+                "movs r6, #0",
+                "movs r7, #0",
+                "ldr pc, [sp, #{entry_at}]",
+                // Block loop: x part (entered at its first chunk, accumulators clear).
+                "11:",
+                ".set slg_p, 0",
+                ".rept {xmax}",
+                FULL_CHUNK!(),
+                ".endr",
+                "12:",
+                ".if (12b - 11b) != {chunk_bytes} * {xmax}",
+                ".error \"dsp full-h kernel: unrolled x chunk is not 72 bytes\"",
+                ".endif",
+                BLOCK_EXTRACT!(),
+                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0].
+                "str r4, [r1]",
+                "str r2, [r1, #8]",
+                "str r7, [r1, #16]",
+                "str r5, [r1, #24]",
+                // h part: the first chunk starts r4 and r7.
+                "movs r2, #0",
+                "movs r3, #0",
+                "movs r5, #0",
+                "movs r6, #0",
+                FULL_CHUNK!(first),
+                ".rept {hchunks} - 1",
+                FULL_CHUNK!(),
+                ".endr",
+                BLOCK_EXTRACT!(),
+                "str r4, [r1, #4]",
+                "str r2, [r1, #12]",
+                "str r7, [r1, #20]",
+                "str r5, [r1, #28]",
+                "ldr r8, [sp, #{end_at}]",
+                "ldr r9, [sp, #{adv_at}]",
+                "adds r1, r1, #32",
+                "add r0, r0, r9",
+                "movs r2, #0",
+                "movs r3, #0",
+                "movs r4, #0",
+                "movs r5, #0",
+                "movs r6, #0",
+                "movs r7, #0",
+                "cmp r1, r8",
+                "beq 9f",
+                "ldr pc, [sp, #{entry_at}]",
+                "9:",
+                "add sp, sp, #{frame}",
+                "pop {{r4-r11, lr}}",
+                frame = const 4 * FULL_ACT_WORDS + 16,
+                end_at = const 4 * FULL_ACT_WORDS,
+                entry_at = const 4 * FULL_ACT_WORDS + 4,
+                adv_at = const 4 * FULL_ACT_WORDS + 8,
+                h_at = const 8 * super::MAX_BLOCK_X_CHUNKS,
+                h_bytes = const 16 * super::MAX_BLOCK_H_CHUNKS,
+                xmax = const super::MAX_BLOCK_X_CHUNKS,
+                hpasses = const super::MAX_BLOCK_H_CHUNKS / 4,
+                hchunks = const super::MAX_BLOCK_H_CHUNKS,
+                chunk_bytes = const FULL_CHUNK_BYTES,
                 inout("r0") p as *const BlockParams => _,
                 out("r1") _,
                 out("r2") _,
