@@ -43,6 +43,30 @@
 use crate::activation::IntervalTable;
 use crate::blob::LstmRowParams;
 
+/// σ's interval table ([`crate::activation::table`]). On the bare-metal target it is placed in
+/// `.data`, copied to SRAM by the runtime at boot: the gate pass and the cell update read it
+/// 640 times per channel step, and from flash nearly every read would miss the ART
+/// accelerator's 8 data lines (5 wait states). 4 KiB of RAM each.
+#[cfg_attr(
+    all(target_arch = "arm", target_os = "none"),
+    unsafe(link_section = ".data.slipguard_sigmoid")
+)]
+// SAFETY: a plain read-only static in an ordinary data section (the runtime initialises .data
+// before main); nothing else is placed there.
+static SIGMOID_TABLE: IntervalTable = crate::activation::SIGMOID_INTERVALS;
+/// tanh's interval table, in RAM on the target as [`SIGMOID_TABLE`].
+#[cfg_attr(
+    all(target_arch = "arm", target_os = "none"),
+    unsafe(link_section = ".data.slipguard_tanh")
+)]
+// SAFETY: as for SIGMOID_TABLE.
+static TANH_TABLE: IntervalTable = crate::activation::TANH_INTERVALS;
+
+/// The interval table of tanh (`true`) or σ (`false`) (see [`SIGMOID_TABLE`]).
+pub(crate) fn interval_table(tanh: bool) -> &'static IntervalTable {
+    if tanh { &TANH_TABLE } else { &SIGMOID_TABLE }
+}
+
 /// The cell format's constants for [`lstm_cell_update`] (from `lstm::CellShifts`):
 /// c' = sat16(((f·c + 2^14) >> 15) + ((i·g + ig_half) >> ig_shift)), then
 /// q = sat16((c'·q_mul + q_add) >> 3) in Q3.12 for tanh.
