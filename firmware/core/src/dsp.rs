@@ -641,12 +641,21 @@ mod arm {
         unsafe {
             core::arch::asm!(
                 "push {{r4-r11}}",
-                // Two rows per loop pass; an odd count enters at the second.
-                "tst r12, #1",
-                "bne 3f",
+                // Four rows per loop pass; a count of 4m + 3, 4m + 2 or 4m + 1 enters at the
+                // second, third or fourth.
+                "ands r12, r12, #3",
+                "beq 1f",
+                "cmp r12, #2",
+                "bhi 3f",
+                "beq 4f",
+                "b 5f",
                 "1:",
                 GATE_ROW!(),
                 "3:",
+                GATE_ROW!(),
+                "4:",
+                GATE_ROW!(),
+                "5:",
                 GATE_ROW!(),
                 "cmp r0, r1",
                 "bne 1b",
@@ -656,7 +665,7 @@ mod arm {
                 in("r1") range.end,
                 inout("r2") params.as_ptr() => _,
                 in("r3") mid,
-                in("r12") n,
+                inout("r12") n => _,
             );
         }
         // Rows done: `end` is `range.start` advanced by whole rows, within the range.
