@@ -251,15 +251,21 @@ struct BlockRows([i8; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
 /// The register-blocked LSTM kernel (`lstm_block_sums`, assembly on this target) on weights
 /// packed by `pack_lstm_blocks` against the row-major portable kernel on the original weights
 /// (`lstm_gate_sums_portable`, an independent path: other layout, other activation order), for
-/// every x part of 0..=3 chunks and h part of 0..=32 chunks, on random and extreme data; plus a
-/// misaligned and a too-short view (the portable fallback).
+/// every x part of 0..=MAX_BLOCK_X_CHUNKS chunks and h part of 0..=MAX_BLOCK_H_CHUNKS chunks, on
+/// random and extreme data; the full h part (the straight-line full-h kernel, every x entry)
+/// with 8 more random rounds; plus a misaligned view (the portable fallback).
 fn check_block_kernel() {
     let mut rng = Rng(0xb10c_0001);
     let mut first_bad: Option<(&str, u32, usize, usize)> = None;
     let mut cases = 0u32;
-    for pattern in 0..4u32 {
+    for round in 0..12u32 {
+        // Rounds 0..4: the four data patterns; from 4 on, random data for the full h part.
+        let pattern = if round < 4 { round } else { 0 };
         for xc in 0..=MAX_BLOCK_X_CHUNKS {
             for hc in 0..=MAX_BLOCK_H_CHUNKS {
+                if round >= 4 && hc != MAX_BLOCK_H_CHUNKS {
+                    continue;
+                }
                 let (hh, stride) = (4 * xc, 4 * (xc + hc));
                 let len = BLOCK_CHECK_ROWS * stride;
                 // Row-major weights in [-127, 127] (the exporter's range), -128 in a rows too.
@@ -331,7 +337,7 @@ fn check_block_kernel() {
                 lstm_gate_sums_portable(&w.0[..len], stride, hh, &xp[..xpn], &hp[..hpn], &mut want);
                 let mut packed = BlockRows([0; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
                 if !pack_lstm_blocks(&w.0[..len], stride, &mut packed.0[..len]) && stride > 0 {
-                    first_bad.get_or_insert(("pack refused", pattern, xc, hc));
+                    first_bad.get_or_insert(("pack refused", round, xc, hc));
                     continue;
                 }
                 // Aligned (assembly), then one byte off (portable fallback, after a copy).
@@ -351,7 +357,7 @@ fn check_block_kernel() {
                     );
                     cases += 1;
                     if got[..] != want[..] {
-                        first_bad.get_or_insert((name, pattern, xc, hc));
+                        first_bad.get_or_insert((name, round, xc, hc));
                     }
                 }
             }
@@ -359,7 +365,7 @@ fn check_block_kernel() {
     }
     hprintln!("lstm blocked kernel: {} cases", cases);
     harness::check_equal(
-        "lstm blocked kernel == row-major portable (first layout, pattern, x chunks, h chunks)",
+        "lstm blocked kernel == row-major portable (first layout, round, x chunks, h chunks)",
         &first_bad,
         &None,
     );
