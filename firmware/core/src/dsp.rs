@@ -16,7 +16,8 @@
 //! - [`lstm_block_sums`]: the same two dot products from weights in the *blocked layout* of
 //!   [`pack_lstm_blocks`] (the model's RAM image, [`crate::model_ram`]): register-blocked, 4 rows
 //!   per pass reusing each activation word (x and h in natural order) held in registers, about
-//!   1.25 cycles per MAC; reference [`lstm_block_sums_portable`].
+//!   1.2 cycles per MAC with a full h part (H = 128: activations read from a stack copy at fixed
+//!   offsets, pipelined loads), 1.25 otherwise; reference [`lstm_block_sums_portable`].
 //! - [`lstm_gate_rows`]: the gate pass (requantisation, σ/tanh by interval table) in assembly;
 //!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
 //!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
@@ -412,8 +413,10 @@ fn block_row(
 /// chunks: the register-blocked assembly kernel. Per chunk of 4 rows × 4 values it loads 2
 /// activation words and 4 weight words (LDM) and runs 4 × (SMLALD, SXTB16, SMLAD): 16 MACs in
 /// 14 instructions, about 20 cycles, each activation word used by 4 rows; a's sum is the
-/// SMLAD accumulator, b's is (SMLALD − SMLAD) / 256, exact in 64 bits. Otherwise the portable
-/// code.
+/// SMLAD accumulator, b's is (SMLALD − SMLAD) / 256, exact in 64 bits. With exactly
+/// [`MAX_BLOCK_H_CHUNKS`] h chunks (H = 128) a straight-line variant runs instead: the
+/// activations copied once to the stack and read at fixed offsets from sp, the chunk's 6 words
+/// by single pipelined LDRs (18 instructions, 19 cycles). Otherwise the portable code.
 pub fn lstm_block_sums<'o>(
     wb: &[i8],
     stride: usize,
@@ -456,6 +459,32 @@ pub fn lstm_gate_rows(
     {
         let _ = (acc, params, table);
         0
+    }
+}
+
+/// The gate pass of a RAM image's folded rows (`lstm::fold_row`) in assembly: for every row
+/// `acc[r][0] = f(sat16(⌊(C·2^32 + acc[r][0]·mx + acc[r][1]·mh) / 2^32⌋ >> d))` with C =
+/// `bias_q12`, d = `shift` (1..=30) and f by its interval `table`: the numbers of
+/// `lstm::gate_activations_folded_portable`. Per row 15 instructions, about 21 cycles (no
+/// range check: the blob parser admits only folded rows in an image). Returns false, changing
+/// nothing, where it does not run (targets without the DSP extension); true after every row
+/// of `min(acc.len(), params.len())`. Rows outside the folded form give unspecified values
+/// (never an access outside `acc`, `params` or `table`).
+#[inline]
+pub fn lstm_gate_rows_folded(
+    acc: &mut [[i32; 2]],
+    params: &[LstmRowParams],
+    table: &IntervalTable,
+) -> bool {
+    #[cfg(slipguard_dsp)]
+    {
+        arm::gate_rows_folded(acc, params, table);
+        true
+    }
+    #[cfg(not(slipguard_dsp))]
+    {
+        let _ = (acc, params, table);
+        false
     }
 }
 
@@ -666,6 +695,83 @@ mod arm {
         }
         // Rows done: `end` is `range.start` advanced by whole rows, within the range.
         (end as usize - range.start as usize) / 8
+    }
+
+    /// One folded row of `gate_rows_folded`: the sums (two LDRs, pipelined after the previous
+    /// row's STR), the parameters mx, mh, C, d (LDM), z = C·2^32 + acc_x·mx + acc_h·mh in
+    /// r10:r6 (SMLAL × 2 onto C as the high word), t = hi >> d, SSAT to i16, then the interval
+    /// t >> 7 (two LDRs at the table's middle + 8·i and + 8·i + 4, register offsets) at the
+    /// position t & 127: (a + d·f) >> 7.
+    macro_rules! GATE_ROW_FOLDED {
+        () => {
+            "ldr r8, [r0]
+             ldr r9, [r0, #4]
+             ldm r2!, {{r4, r5, r6, r7}}
+             movs r10, #0
+             smlal r10, r6, r8, r4
+             smlal r10, r6, r9, r5
+             asr r6, r6, r7
+             ssat r6, #16, r6
+             asr r8, r6, #7
+             ldr r9, [r3, r8, lsl #3]
+             ldr r10, [r12, r8, lsl #3]
+             and r6, r6, #127
+             mla r9, r10, r6, r9
+             asr r9, r9, #7
+             str r9, [r0], #8"
+        };
+    }
+
+    /// See `lstm_gate_rows_folded`.
+    #[inline]
+    pub(super) fn gate_rows_folded(
+        acc: &mut [[i32; 2]],
+        params: &[LstmRowParams],
+        table: &IntervalTable,
+    ) {
+        let n = acc.len().min(params.len());
+        if n == 0 {
+            return;
+        }
+        let range = acc[..n].as_mut_ptr_range();
+        // Entry 256 (in bounds): the interval of t = 0; t >> 7 is in -256..=255. Its second
+        // word, for the register-offset loads.
+        let mid: *const [i32; 2] = &table[256];
+        let mid_hi: *const i32 = &table[256][1];
+        // SAFETY: the loop reads params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
+        // reads and writes acc[r] for r < n, stopping at `range.end` (n ≥ 1 rows); the table
+        // words at 8·(256 + (t >> 7)) and + 4 with t a saturated i16 are in entries 0..=511,
+        // inside `table`. It saves and restores r4-r10 and changes no memory but `acc`.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r10}}",
+                // Four rows per loop pass; a count of 4m + 3, 4m + 2 or 4m + 1 enters at the
+                // second, third or fourth.
+                "ands r1, r1, #3",
+                "beq 1f",
+                "cmp r1, #2",
+                "bhi 3f",
+                "beq 4f",
+                "b 5f",
+                "1:",
+                GATE_ROW_FOLDED!(),
+                "3:",
+                GATE_ROW_FOLDED!(),
+                "4:",
+                GATE_ROW_FOLDED!(),
+                "5:",
+                GATE_ROW_FOLDED!(),
+                "cmp r0, r11",
+                "bne 1b",
+                "pop {{r4-r10}}",
+                inout("r0") range.start => _,
+                inout("r1") n => _,
+                inout("r2") params.as_ptr() => _,
+                in("r3") mid,
+                in("r12") mid_hi,
+                in("r11") range.end,
+            );
+        }
     }
 
     /// The assembly part of `dot_i8_i16_fast`: Σ w[k]·v[k] over the first 8·⌊n / 8⌋ terms,

@@ -373,10 +373,12 @@ fn check_block_kernel() {
 
 /// The assembly gate pass (`lstm::gate_activations`) against the Rust one, σ and tanh, on
 /// random sums and parameters: shifts 33..=62 (assembly) mixed with 1..=32 (the rows the
-/// assembly leaves to Rust), extreme sums, biases and multipliers.
+/// assembly leaves to Rust), extreme sums, biases and multipliers; and the folded gate pass of a
+/// RAM image (`lstm::gate_activations_folded`) on the rows that fold, against the blob rows.
 fn check_gate_pass() {
     let mut rng = Rng(0x5eed_1234);
     let mut first_bad = None;
+    let (mut first_folded_bad, mut folded_rows) = (None, 0usize);
     for round in 0..40u32 {
         let mut acc = [[0i32; 2]; 64];
         let mut params = [LstmRowParams {
@@ -417,7 +419,36 @@ fn check_gate_pass() {
                 first_bad = Some((round, tanh));
             }
         }
+        // The folded rows of a RAM image (`lstm::fold_row`), assembly and Rust, against the
+        // blob rows' Rust gate pass: every row of the round that folds, 1..=64 of them (every
+        // loop entry), the count varied by round.
+        let mut fa = [[0i32; 2]; 64];
+        let mut fp = [params[0]; 64];
+        let mut op = [params[0]; 64];
+        let mut m = 0;
+        for (a, p) in acc.iter().zip(&params) {
+            if let (Some(f), true) = (lstm::fold_row(p), m < 64 - (round as usize % 4)) {
+                (fa[m], fp[m], op[m]) = (*a, f, *p);
+                m += 1;
+            }
+        }
+        for tanh in [false, true] {
+            let (mut got, mut port, mut want) = (fa, fa, fa);
+            lstm::gate_activations_folded(black_box(&mut got[..m]), &fp[..m], tanh);
+            lstm::gate_activations_folded_portable(&mut port[..m], &fp[..m], tanh);
+            lstm::gate_activations_portable(&mut want[..m], &op[..m], tanh);
+            if (got != want || port != want) && first_folded_bad.is_none() {
+                first_folded_bad = Some((round, tanh));
+            }
+            folded_rows += m;
+        }
     }
+    hprintln!("lstm gate pass, folded rows: {} rows", folded_rows);
+    harness::check_equal(
+        "lstm folded gate pass asm == portable == blob rows (first round, tanh)",
+        &first_folded_bad,
+        &None,
+    );
     harness::check_equal(
         "lstm gate pass asm == portable (first round, tanh)",
         &first_bad,
