@@ -964,18 +964,17 @@ mod arm {
              smlad r7, lr, r9, r7"
         };
     }
-    /// b's sums of both pairs: (A − B) / 256 from the 64-bit A (exact: it fits 32 bits), into
-    /// r2 (pair 0) and r5 (pair 1); a's stay in r4 and r7.
+    /// b's sums of both pairs from the 64-bit P = 256·B + A and a's sum A: ⌊P / 256⌋ = B +
+    /// ⌊A / 256⌋, so B = (the low word of P >> 8) − (A >> 8), exact modulo 2^32 and B fits
+    /// 32 bits; into r2 (pair 0) and r5 (pair 1); a's stay in r4 and r7. 3 instructions a pair.
     macro_rules! BLOCK_EXTRACT {
         () => {
-            "subs r2, r2, r4
-             sbc r3, r3, r4, asr #31
-             lsrs r2, r2, #8
-             orr r2, r2, r3, lsl #24
-             subs r5, r5, r7
-             sbc r6, r6, r7, asr #31
-             lsrs r5, r5, #8
-             orr r5, r5, r6, lsl #24"
+            "lsr.w r2, r2, #8
+             orr.w r2, r2, r3, lsl #24
+             sub.w r2, r2, r4, asr #8
+             lsr.w r5, r5, #8
+             orr.w r5, r5, r6, lsl #24
+             sub.w r5, r5, r7, asr #8"
         };
     }
     /// Clears the six accumulators.
@@ -1194,6 +1193,16 @@ mod arm {
         };
     }
 
+    /// Clears the six accumulators in 4 instructions: UMULL of 0 × 0 clears a register pair.
+    macro_rules! FULL_CLEAR {
+        () => {
+            "mov.w r4, #0
+             mov.w r7, #0
+             umull r2, r3, r4, r4
+             umull r5, r6, r4, r4"
+        };
+    }
+
     /// Words of the full-h kernel's stack copy of the activations (x then h, x right-aligned
     /// to chunk position MAX_BLOCK_X_CHUNKS).
     const FULL_ACT_WORDS: usize = 2 * (super::MAX_BLOCK_X_CHUNKS + super::MAX_BLOCK_H_CHUNKS);
@@ -1261,14 +1270,11 @@ mod arm {
                 "ldr r1, [r0, #12]",
                 "ldr r0, [r0, #0]",
                 "sub.w r0, r0, r2, lsl #4",
-                "movs r2, #0",
-                "movs r3, #0",
-                "movs r4, #0",
-                "movs r5, #0",
-                "movs r6, #0",
-                "movs r7, #0",
+                FULL_CLEAR!(),
                 "ldr pc, [sp, #{entry_at}]",
-                // Block loop: x part (entered at its first chunk, accumulators clear).
+                // Block loop: x part (entered at its first chunk, accumulators clear). Every
+                // instruction of the loop is 32-bit and word-aligned (none straddles a line).
+                ".p2align 2",
                 "11:",
                 ".set slg_p, 0",
                 ".rept {xmax}",
@@ -1280,36 +1286,30 @@ mod arm {
                 ".endif",
                 BLOCK_EXTRACT!(),
                 // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0].
-                "str r4, [r1]",
-                "str r2, [r1, #8]",
-                "str r7, [r1, #16]",
-                "str r5, [r1, #24]",
-                // h part: the first chunk starts r4 and r7.
-                "movs r2, #0",
-                "movs r3, #0",
-                "movs r5, #0",
-                "movs r6, #0",
+                "str.w r4, [r1]",
+                "str.w r2, [r1, #8]",
+                "str.w r7, [r1, #16]",
+                "str.w r5, [r1, #24]",
+                // h part: the first chunk starts r4 and r7; r4 (stored) is 0 for UMULL.
+                "mov.w r4, #0",
+                "umull r2, r3, r4, r4",
+                "umull r5, r6, r4, r4",
                 FULL_CHUNK!(first),
                 ".rept {hchunks} - 1",
                 FULL_CHUNK!(),
                 ".endr",
                 BLOCK_EXTRACT!(),
-                "str r4, [r1, #4]",
-                "str r2, [r1, #12]",
-                "str r7, [r1, #20]",
-                "str r5, [r1, #28]",
-                "ldr r8, [sp, #{end_at}]",
-                "ldr r9, [sp, #{adv_at}]",
-                "adds r1, r1, #32",
-                "add r0, r0, r9",
-                "movs r2, #0",
-                "movs r3, #0",
-                "movs r4, #0",
-                "movs r5, #0",
-                "movs r6, #0",
-                "movs r7, #0",
-                "cmp r1, r8",
-                "beq 9f",
+                "str.w r4, [r1, #4]",
+                "str.w r2, [r1, #12]",
+                "str.w r7, [r1, #20]",
+                "str.w r5, [r1, #28]",
+                "ldr.w r8, [sp, #{end_at}]",
+                "ldr.w r9, [sp, #{adv_at}]",
+                "adds.w r1, r1, #32",
+                "add.w r0, r0, r9",
+                FULL_CLEAR!(),
+                "cmp.w r1, r8",
+                "beq.w 9f",
                 "ldr pc, [sp, #{entry_at}]",
                 "9:",
                 "add sp, sp, #{frame}",
