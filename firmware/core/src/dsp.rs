@@ -465,7 +465,7 @@ pub fn lstm_gate_rows(
 /// The gate pass of a RAM image's folded rows (`lstm::fold_row`) in assembly: for every row
 /// `acc[r][0] = f(sat16(⌊(C·2^32 + acc[r][0]·mx + acc[r][1]·mh) / 2^32⌋ >> d))` with C =
 /// `bias_q12`, d = `shift` (1..=30) and f by its interval `table`: the numbers of
-/// `lstm::gate_activations_folded_portable`. Per row 15 instructions, about 21 cycles (no
+/// `lstm::gate_activations_folded_portable`. Per row 18 instructions, about 21 cycles (no
 /// range check: the blob parser admits only folded rows in an image). Returns false, changing
 /// nothing, where it does not run (targets without the DSP extension); true after every row
 /// of `min(acc.len(), params.len())`. Rows outside the folded form give unspecified values
@@ -722,6 +722,33 @@ mod arm {
         };
     }
 
+    /// Row `slg_j` (an assembler symbol) of the 8-row pass of `gate_rows_folded`: as
+    /// `GATE_ROW_FOLDED`, with the sums at `r0 + 8·slg_j` and the parameters at
+    /// `r2 + 16·slg_j` read by six single LDRs in a row (pipelined after the previous row's STR).
+    macro_rules! GATE_ROW_FOLDED_AT {
+        () => {
+            "ldr.w r8, [r0, #(8 * slg_j)]
+             ldr.w r9, [r0, #(8 * slg_j + 4)]
+             ldr.w r4, [r2, #(16 * slg_j)]
+             ldr.w r5, [r2, #(16 * slg_j + 4)]
+             ldr.w r6, [r2, #(16 * slg_j + 8)]
+             ldr.w r7, [r2, #(16 * slg_j + 12)]
+             movs r10, #0
+             smlal r10, r6, r8, r4
+             smlal r10, r6, r9, r5
+             asr r6, r6, r7
+             ssat r6, #16, r6
+             asr r8, r6, #7
+             ldr r9, [r3, r8, lsl #3]
+             ldr r10, [r12, r8, lsl #3]
+             and r6, r6, #127
+             mla r9, r10, r6, r9
+             asr r9, r9, #7
+             str.w r9, [r0, #(8 * slg_j)]
+             .set slg_j, slg_j + 1"
+        };
+    }
+
     /// See `lstm_gate_rows_folded`.
     #[inline]
     pub(super) fn gate_rows_folded(
@@ -738,34 +765,39 @@ mod arm {
         // word, for the register-offset loads.
         let mid: *const [i32; 2] = &table[256];
         let mid_hi: *const i32 = &table[256][1];
-        // SAFETY: the loop reads params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
-        // reads and writes acc[r] for r < n, stopping at `range.end` (n ≥ 1 rows); the table
+        // The first 8·⌊n / 8⌋ rows in passes of 8 (fixed offsets, one pointer update a pass),
+        // the rest one row a pass; r1 is where the 8-row passes end.
+        let eights = range.start.wrapping_add(n & !7);
+        // SAFETY: the loops read params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
+        // read and write acc[r] for r < n: 8-row passes up to `eights` (a multiple of 8 rows
+        // from the start), then single rows up to `range.end` (n ≥ 1 rows); the table
         // words at 8·(256 + (t >> 7)) and + 4 with t a saturated i16 are in entries 0..=511,
         // inside `table`. It saves and restores r4-r10 and changes no memory but `acc`.
         unsafe {
             core::arch::asm!(
                 "push {{r4-r10}}",
-                // Four rows per loop pass; a count of 4m + 3, 4m + 2 or 4m + 1 enters at the
-                // second, third or fourth.
-                "ands r1, r1, #3",
-                "beq 1f",
-                "cmp r1, #2",
-                "bhi 3f",
-                "beq 4f",
-                "b 5f",
+                "cmp r0, r1",
+                "beq 6f",
                 "1:",
-                GATE_ROW_FOLDED!(),
-                "3:",
-                GATE_ROW_FOLDED!(),
-                "4:",
-                GATE_ROW_FOLDED!(),
-                "5:",
+                ".set slg_j, 0",
+                ".rept 8",
+                GATE_ROW_FOLDED_AT!(),
+                ".endr",
+                "adds r0, r0, #64",
+                "adds r2, r2, #128",
+                "cmp r0, r1",
+                "bne 1b",
+                "6:",
+                "cmp r0, r11",
+                "beq 8f",
+                "7:",
                 GATE_ROW_FOLDED!(),
                 "cmp r0, r11",
-                "bne 1b",
+                "bne 7b",
+                "8:",
                 "pop {{r4-r10}}",
                 inout("r0") range.start => _,
-                inout("r1") n => _,
+                in("r1") eights,
                 inout("r2") params.as_ptr() => _,
                 in("r3") mid,
                 in("r12") mid_hi,

@@ -432,15 +432,16 @@ fn check_gate_pass() {
                 m += 1;
             }
         }
-        for tanh in [false, true] {
+        // All of them (8-row passes and single rows), and short counts (single rows only).
+        for (len, tanh) in [(m, false), (m, true), (m.min(1), false), (m.min(7), true)] {
             let (mut got, mut port, mut want) = (fa, fa, fa);
-            lstm::gate_activations_folded(black_box(&mut got[..m]), &fp[..m], tanh);
-            lstm::gate_activations_folded_portable(&mut port[..m], &fp[..m], tanh);
-            lstm::gate_activations_portable(&mut want[..m], &op[..m], tanh);
+            lstm::gate_activations_folded(black_box(&mut got[..len]), &fp[..len], tanh);
+            lstm::gate_activations_folded_portable(&mut port[..len], &fp[..len], tanh);
+            lstm::gate_activations_portable(&mut want[..len], &op[..len], tanh);
             if (got != want || port != want) && first_folded_bad.is_none() {
                 first_folded_bad = Some((round, tanh));
             }
-            folded_rows += m;
+            folded_rows += len;
         }
     }
     hprintln!("lstm gate pass, folded rows: {} rows", folded_rows);
