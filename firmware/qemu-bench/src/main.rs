@@ -517,6 +517,34 @@ fn check_cell_update() {
 #[repr(C, align(4))]
 struct Acts([i16; MAX_N + 2]);
 
+/// `dsp::isqrt_u32` (VSQRT.F32 and a correction on this target) against `u32::isqrt`: the
+/// ends, every k² − 1, k², k² + 1 for k = 0..=65535, and 20 000 random values.
+fn check_isqrt() {
+    let mut rng = Rng(0x5a27_0001);
+    let mut first_bad = None;
+    let mut check = |n: u32| {
+        if slipguard_core::dsp::isqrt_u32(black_box(n)) != n.isqrt() && first_bad.is_none() {
+            first_bad = Some(n);
+        }
+    };
+    for n in [0, 1, 2, 3, u32::MAX, u32::MAX - 1, 1 << 31, (1 << 24) + 1] {
+        check(n);
+    }
+    for k in 0..=65535u32 {
+        let sq = k * k;
+        check(sq);
+        check(sq.wrapping_sub(1));
+        check(sq.saturating_add(1));
+        check(sq.saturating_add(2 * k));
+    }
+    for _ in 0..20_000 {
+        let r = rng.next();
+        check(r);
+        check(r >> (r % 32));
+    }
+    harness::check_equal("isqrt_u32 == u32::isqrt (first n)", &first_bad, &None);
+}
+
 /// `dot_i8_i16_fast` (assembly for whole groups of 8 on this target) against `dot_i8_i16`
 /// for every length 0..=MAX_N, random and extreme data, aligned and misaligned.
 fn check_dense_kernel() {
@@ -617,6 +645,7 @@ fn main() -> ! {
     check_gate_pass();
     check_cell_update();
     check_dense_kernel();
+    check_isqrt();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,
