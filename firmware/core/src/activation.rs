@@ -76,15 +76,15 @@ const fn pairs(v: &[i16; ENTRIES]) -> [[i32; 2]; ENTRIES - 1] {
 /// the 7 position bits, plus half an output LSB for rounding) and the second a Q0.15 step.
 pub type IntervalTable = [[i32; 2]; ENTRIES - 1];
 
-/// σ intervals (see [`pairs`]).
-static SIGMOID_TABLE: IntervalTable = pairs(&SIGMOID_VALUES);
+/// σ intervals (see [`pairs`]); the static lives in [`crate::dsp`] (in RAM on the target).
+pub(crate) const SIGMOID_INTERVALS: IntervalTable = pairs(&SIGMOID_VALUES);
 /// tanh intervals (see [`pairs`]).
-static TANH_TABLE: IntervalTable = pairs(&TANH_VALUES);
+pub(crate) const TANH_INTERVALS: IntervalTable = pairs(&TANH_VALUES);
 
 /// The interval table of tanh (`true`) or σ (`false`), for [`lookup`] and the assembly gate pass
 /// in [`crate::dsp`].
 pub fn table(tanh: bool) -> &'static IntervalTable {
-    if tanh { &TANH_TABLE } else { &SIGMOID_TABLE }
+    crate::dsp::interval_table(tanh)
 }
 
 /// f(x) by the interval table of f: [`sigmoid`] or [`tanh`] for their tables.
@@ -110,13 +110,13 @@ fn interpolate(table: &IntervalTable, x: i16) -> i16 {
 /// σ(x): Q3.12 in, Q0.15 out (0..=32767).
 #[inline]
 pub fn sigmoid(x: i16) -> i16 {
-    interpolate(&SIGMOID_TABLE, x)
+    interpolate(table(false), x)
 }
 
 /// tanh(x): Q3.12 in, Q0.15 out (-32768..=32767).
 #[inline]
 pub fn tanh(x: i16) -> i16 {
-    interpolate(&TANH_TABLE, x)
+    interpolate(table(true), x)
 }
 
 #[cfg(test)]

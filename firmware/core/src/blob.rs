@@ -433,7 +433,8 @@ pub struct LstmTensors<'a> {
     pub weights: &'a [i8],
     /// `weights` are in the blocked layout (a RAM image, [`IMAGE_MAGIC`]).
     pub blocked: bool,
-    /// 4H rows of requantisation parameters, same order.
+    /// 4H rows of requantisation parameters, same order; in a RAM image (`blocked`) in the
+    /// folded form of [`crate::lstm::fold_row`] (`bias_q12` the folded addend C, `shift` d).
     pub rows: &'a [LstmRowParams],
 }
 
@@ -799,7 +800,16 @@ impl<'a> ModelBlob<'a> {
             let pe = get(2 + 2 * k, TensorKind::LstmRowParams)?;
             let rows: &[LstmRowParams] =
                 i32_table(bytes, pe, 4 * hidden, 4, TensorKind::LstmRowParams)?;
-            if rows.iter().any(|r| !(1..=62).contains(&r.shift)) {
+            // A RAM image's rows are folded (`lstm::fold_row`): d in 1..=30, |C| ≤ 2^30.
+            let bad = |r: &LstmRowParams| {
+                if image {
+                    !(1..=30).contains(&r.shift)
+                        || (r.bias_q12 as i64).abs() > crate::lstm::FOLDED_ADDEND_MAX
+                } else {
+                    !(1..=62).contains(&r.shift)
+                }
+            };
+            if rows.iter().any(bad) {
                 return Err(BlobError::QuantParam(TensorKind::LstmRowParams));
             }
             *l = LstmTensors {

@@ -16,7 +16,8 @@
 //! - [`lstm_block_sums`]: the same two dot products from weights in the *blocked layout* of
 //!   [`pack_lstm_blocks`] (the model's RAM image, [`crate::model_ram`]): register-blocked, 4 rows
 //!   per pass reusing each activation word (x and h in natural order) held in registers, about
-//!   1.25 cycles per MAC; reference [`lstm_block_sums_portable`].
+//!   1.2 cycles per MAC with a full h part (H = 128: activations read from a stack copy at fixed
+//!   offsets, pipelined loads), 1.25 otherwise; reference [`lstm_block_sums_portable`].
 //! - [`lstm_gate_rows`]: the gate pass (requantisation, σ/tanh by interval table) in assembly;
 //!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
 //!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
@@ -42,6 +43,66 @@
 
 use crate::activation::IntervalTable;
 use crate::blob::LstmRowParams;
+
+/// σ's interval table ([`crate::activation::table`]). On the bare-metal target it is placed in
+/// `.data`, copied to SRAM by the runtime at boot: the gate pass reads it 384 times per channel
+/// step (rows i, f, o), and from flash nearly every read would miss the ART accelerator's 8
+/// data lines (5 wait states). 4 KiB of RAM; tanh's table (256 reads per step: rows g and the
+/// cell update) stays in flash, within the static RAM budget (`scripts/budgets.sh`).
+#[cfg_attr(
+    all(target_arch = "arm", target_os = "none"),
+    unsafe(link_section = ".data.slipguard_sigmoid")
+)]
+// SAFETY: a plain read-only static in an ordinary data section (the runtime initialises .data
+// before main); nothing else is placed there.
+static SIGMOID_TABLE: IntervalTable = crate::activation::SIGMOID_INTERVALS;
+/// tanh's interval table (flash on the target, see [`SIGMOID_TABLE`]).
+static TANH_TABLE: IntervalTable = crate::activation::TANH_INTERVALS;
+
+/// The interval table of tanh (`true`) or σ (`false`) (see [`SIGMOID_TABLE`]).
+pub(crate) fn interval_table(tanh: bool) -> &'static IntervalTable {
+    if tanh { &TANH_TABLE } else { &SIGMOID_TABLE }
+}
+
+/// ⌊√n⌋, the number `u32::isqrt` gives (the STFT magnitude's square root). On a Cortex-M4F
+/// (hard-float ABI, the FPU enabled by the runtime) from VCVT + VSQRT.F32 + VCVT (about 18
+/// cycles, against about 80 for the integer loop) and one correction: n as f32 is within
+/// 2^-24 relative of n and the square root is correctly rounded, so the truncated estimate is
+/// within 2^-8 of √n ≤ 2^16 and at most 1 away from ⌊√n⌋; one comparison of s² and (s + 1)²
+/// with n (in 64 bits) fixes it. Elsewhere `u32::isqrt`.
+#[inline]
+pub fn isqrt_u32(n: u32) -> u32 {
+    #[cfg(all(slipguard_dsp, target_abi = "eabihf"))]
+    {
+        let s: u32;
+        // SAFETY: FPU register arithmetic only (no memory, no stack); s0 is declared clobbered.
+        unsafe {
+            core::arch::asm!(
+                "vmov s0, {n}",
+                "vcvt.f32.u32 s0, s0",
+                "vsqrt.f32 s0, s0",
+                "vcvt.u32.f32 s0, s0",
+                "vmov {s}, s0",
+                n = in(reg) n,
+                s = lateout(reg) s,
+                out("s0") _,
+                options(pure, nomem, nostack),
+            );
+        }
+        let sq = |s: u32| u64::from(s) * u64::from(s);
+        if sq(s) > u64::from(n) {
+            s - 1
+        } else if sq(s + 1) <= u64::from(n) {
+            s + 1
+        } else {
+            s
+        }
+    }
+    #[cfg(not(all(slipguard_dsp, target_abi = "eabihf")))]
+    {
+        n.isqrt()
+    }
+}
 
 /// The cell format's constants for [`lstm_cell_update`] (from `lstm::CellShifts`):
 /// c' = sat16(((f·c + 2^14) >> 15) + ((i·g + ig_half) >> ig_shift)), then
@@ -392,8 +453,10 @@ fn block_row(
 /// chunks: the register-blocked assembly kernel. Per chunk of 4 rows × 4 values it loads 2
 /// activation words and 4 weight words (LDM) and runs 4 × (SMLALD, SXTB16, SMLAD): 16 MACs in
 /// 14 instructions, about 20 cycles, each activation word used by 4 rows; a's sum is the
-/// SMLAD accumulator, b's is (SMLALD − SMLAD) / 256, exact in 64 bits. Otherwise the portable
-/// code.
+/// SMLAD accumulator, b's is (SMLALD − SMLAD) / 256, exact in 64 bits. With exactly
+/// [`MAX_BLOCK_H_CHUNKS`] h chunks (H = 128) a straight-line variant runs instead: the
+/// activations copied once to the stack and read at fixed offsets from sp, the chunk's 6 words
+/// by single pipelined LDRs (18 instructions, 19 cycles). Otherwise the portable code.
 pub fn lstm_block_sums<'o>(
     wb: &[i8],
     stride: usize,
@@ -436,6 +499,32 @@ pub fn lstm_gate_rows(
     {
         let _ = (acc, params, table);
         0
+    }
+}
+
+/// The gate pass of a RAM image's folded rows (`lstm::fold_row`) in assembly: for every row
+/// `acc[r][0] = f(sat16(⌊(C·2^32 + acc[r][0]·mx + acc[r][1]·mh) / 2^32⌋ >> d))` with C =
+/// `bias_q12`, d = `shift` (1..=30) and f by its interval `table`: the numbers of
+/// `lstm::gate_activations_folded_portable`. Per row 18 instructions, about 21 cycles (no
+/// range check: the blob parser admits only folded rows in an image). Returns false, changing
+/// nothing, where it does not run (targets without the DSP extension); true after every row
+/// of `min(acc.len(), params.len())`. Rows outside the folded form give unspecified values
+/// (never an access outside `acc`, `params` or `table`).
+#[inline]
+pub fn lstm_gate_rows_folded(
+    acc: &mut [[i32; 2]],
+    params: &[LstmRowParams],
+    table: &IntervalTable,
+) -> bool {
+    #[cfg(slipguard_dsp)]
+    {
+        arm::gate_rows_folded(acc, params, table);
+        true
+    }
+    #[cfg(not(slipguard_dsp))]
+    {
+        let _ = (acc, params, table);
+        false
     }
 }
 
@@ -617,12 +706,21 @@ mod arm {
         unsafe {
             core::arch::asm!(
                 "push {{r4-r11}}",
-                // Two rows per loop pass; an odd count enters at the second.
-                "tst r12, #1",
-                "bne 3f",
+                // Four rows per loop pass; a count of 4m + 3, 4m + 2 or 4m + 1 enters at the
+                // second, third or fourth.
+                "ands r12, r12, #3",
+                "beq 1f",
+                "cmp r12, #2",
+                "bhi 3f",
+                "beq 4f",
+                "b 5f",
                 "1:",
                 GATE_ROW!(),
                 "3:",
+                GATE_ROW!(),
+                "4:",
+                GATE_ROW!(),
+                "5:",
                 GATE_ROW!(),
                 "cmp r0, r1",
                 "bne 1b",
@@ -632,11 +730,120 @@ mod arm {
                 in("r1") range.end,
                 inout("r2") params.as_ptr() => _,
                 in("r3") mid,
-                in("r12") n,
+                inout("r12") n => _,
             );
         }
         // Rows done: `end` is `range.start` advanced by whole rows, within the range.
         (end as usize - range.start as usize) / 8
+    }
+
+    /// One folded row of `gate_rows_folded`: the sums (two LDRs, pipelined after the previous
+    /// row's STR), the parameters mx, mh, C, d (LDM), z = C·2^32 + acc_x·mx + acc_h·mh in
+    /// r10:r6 (SMLAL × 2 onto C as the high word), t = hi >> d, SSAT to i16, then the interval
+    /// t >> 7 (two LDRs at the table's middle + 8·i and + 8·i + 4, register offsets) at the
+    /// position t & 127: (a + d·f) >> 7.
+    macro_rules! GATE_ROW_FOLDED {
+        () => {
+            "ldr r8, [r0]
+             ldr r9, [r0, #4]
+             ldm r2!, {{r4, r5, r6, r7}}
+             movs r10, #0
+             smlal r10, r6, r8, r4
+             smlal r10, r6, r9, r5
+             asr r6, r6, r7
+             ssat r6, #16, r6
+             asr r8, r6, #7
+             ldr r9, [r3, r8, lsl #3]
+             ldr r10, [r12, r8, lsl #3]
+             and r6, r6, #127
+             mla r9, r10, r6, r9
+             asr r9, r9, #7
+             str r9, [r0], #8"
+        };
+    }
+
+    /// Row `slg_j` (an assembler symbol) of the 8-row pass of `gate_rows_folded`: as
+    /// `GATE_ROW_FOLDED`, with the sums at `r0 + 8·slg_j` and the parameters at
+    /// `r2 + 16·slg_j` read by six single LDRs in a row (pipelined after the previous row's STR).
+    macro_rules! GATE_ROW_FOLDED_AT {
+        () => {
+            "ldr.w r8, [r0, #(8 * slg_j)]
+             ldr.w r9, [r0, #(8 * slg_j + 4)]
+             ldr.w r4, [r2, #(16 * slg_j)]
+             ldr.w r5, [r2, #(16 * slg_j + 4)]
+             ldr.w r6, [r2, #(16 * slg_j + 8)]
+             ldr.w r7, [r2, #(16 * slg_j + 12)]
+             movs r10, #0
+             smlal r10, r6, r8, r4
+             smlal r10, r6, r9, r5
+             asr r6, r6, r7
+             ssat r6, #16, r6
+             asr r8, r6, #7
+             ldr r9, [r3, r8, lsl #3]
+             ldr r10, [r12, r8, lsl #3]
+             and r6, r6, #127
+             mla r9, r10, r6, r9
+             asr r9, r9, #7
+             str.w r9, [r0, #(8 * slg_j)]
+             .set slg_j, slg_j + 1"
+        };
+    }
+
+    /// See `lstm_gate_rows_folded`.
+    #[inline]
+    pub(super) fn gate_rows_folded(
+        acc: &mut [[i32; 2]],
+        params: &[LstmRowParams],
+        table: &IntervalTable,
+    ) {
+        let n = acc.len().min(params.len());
+        if n == 0 {
+            return;
+        }
+        let range = acc[..n].as_mut_ptr_range();
+        // Entry 256 (in bounds): the interval of t = 0; t >> 7 is in -256..=255. Its second
+        // word, for the register-offset loads.
+        let mid: *const [i32; 2] = &table[256];
+        let mid_hi: *const i32 = &table[256][1];
+        // The first 8·⌊n / 8⌋ rows in passes of 8 (fixed offsets, one pointer update a pass),
+        // the rest one row a pass; r1 is where the 8-row passes end.
+        let eights = range.start.wrapping_add(n & !7);
+        // SAFETY: the loops read params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
+        // read and write acc[r] for r < n: 8-row passes up to `eights` (a multiple of 8 rows
+        // from the start), then single rows up to `range.end` (n ≥ 1 rows); the table
+        // words at 8·(256 + (t >> 7)) and + 4 with t a saturated i16 are in entries 0..=511,
+        // inside `table`. It saves and restores r4-r10 and changes no memory but `acc`.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r10}}",
+                "cmp r0, r1",
+                "beq 6f",
+                "1:",
+                ".set slg_j, 0",
+                ".rept 8",
+                GATE_ROW_FOLDED_AT!(),
+                ".endr",
+                "adds r0, r0, #64",
+                "adds r2, r2, #128",
+                "cmp r0, r1",
+                "bne 1b",
+                "6:",
+                "cmp r0, r11",
+                "beq 8f",
+                "7:",
+                GATE_ROW_FOLDED!(),
+                "cmp r0, r11",
+                "bne 7b",
+                "8:",
+                "pop {{r4-r10}}",
+                inout("r0") range.start => _,
+                in("r1") eights,
+                inout("r2") params.as_ptr() => _,
+                in("r3") mid,
+                in("r12") mid_hi,
+                in("r11") range.end,
+            );
+        }
     }
 
     /// The assembly part of `dot_i8_i16_fast`: Σ w[k]·v[k] over the first 8·⌊n / 8⌋ terms,
@@ -829,18 +1036,17 @@ mod arm {
              smlad r7, lr, r9, r7"
         };
     }
-    /// b's sums of both pairs: (A − B) / 256 from the 64-bit A (exact: it fits 32 bits), into
-    /// r2 (pair 0) and r5 (pair 1); a's stay in r4 and r7.
+    /// b's sums of both pairs from the 64-bit P = 256·B + A and a's sum A: ⌊P / 256⌋ = B +
+    /// ⌊A / 256⌋, so B = (the low word of P >> 8) − (A >> 8), exact modulo 2^32 and B fits
+    /// 32 bits; into r2 (pair 0) and r5 (pair 1); a's stay in r4 and r7. 3 instructions a pair.
     macro_rules! BLOCK_EXTRACT {
         () => {
-            "subs r2, r2, r4
-             sbc r3, r3, r4, asr #31
-             lsrs r2, r2, #8
-             orr r2, r2, r3, lsl #24
-             subs r5, r5, r7
-             sbc r6, r6, r7, asr #31
-             lsrs r5, r5, #8
-             orr r5, r5, r6, lsl #24"
+            "lsr.w r2, r2, #8
+             orr.w r2, r2, r3, lsl #24
+             sub.w r2, r2, r4, asr #8
+             lsr.w r5, r5, #8
+             orr.w r5, r5, r6, lsl #24
+             sub.w r5, r5, r7, asr #8"
         };
     }
     /// Clears the six accumulators.
@@ -915,8 +1121,15 @@ mod arm {
         // `h[..2·h_chunks]` (aligned `[u32]`s, exactly those lengths) once per block, and
         // writes the 2·rows words of `out` (exclusively borrowed, the layout of [[i32; 2]],
         // rows a multiple of 4); the chunk counts ≤ their unrolled copies keep the computed
-        // jumps inside the kernel. It saves and restores r4-r11, lr and sp.
-        unsafe { lstm_block_kernel(&p) };
+        // jumps inside the kernels, and the full-h kernel runs only at exactly
+        // MAX_BLOCK_H_CHUNKS h chunks. Both save and restore r4-r11, lr and sp.
+        unsafe {
+            if p.h_chunks == super::MAX_BLOCK_H_CHUNKS {
+                lstm_block_kernel_full(&p);
+            } else {
+                lstm_block_kernel(&p);
+            }
+        }
         true
     }
 
@@ -1003,6 +1216,186 @@ mod arm {
                 "pop {{r4-r11, lr}}",
                 xchunks = const super::MAX_BLOCK_X_CHUNKS,
                 hchunks = const super::MAX_BLOCK_H_CHUNKS,
+                inout("r0") p as *const BlockParams => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+    }
+
+    /// One chunk of the full-shape kernel at chunk position `slg_p` (an assembler symbol):
+    /// activations from the stack copy at `sp + 8·slg_p`, weights at `r0 + 16·slg_p`, six
+    /// single LDRs in a row (pipelined: 7 cycles for 6 words) then the 12 MAC instructions of
+    /// `BLOCK_CHUNK`; `$first` starts the a accumulators (r4, r7) with SMUAD.
+    macro_rules! FULL_CHUNK {
+        ($a0:literal, $a1:literal) => {
+            concat!(
+                "ldr.w r8, [sp, #(8 * slg_p)]
+                 ldr.w r9, [sp, #(8 * slg_p + 4)]
+                 ldr.w r10, [r0, #(16 * slg_p)]
+                 ldr.w r11, [r0, #(16 * slg_p + 4)]
+                 ldr.w r12, [r0, #(16 * slg_p + 8)]
+                 ldr.w lr, [r0, #(16 * slg_p + 12)]
+                 smlald r2, r3, r10, r8
+                 sxtb16 r10, r10
+                 ",
+                $a0,
+                "
+                 smlald r2, r3, r11, r9
+                 sxtb16 r11, r11
+                 smlad r4, r11, r9, r4
+                 smlald r5, r6, r12, r8
+                 sxtb16 r12, r12
+                 ",
+                $a1,
+                "
+                 smlald r5, r6, lr, r9
+                 sxtb16 lr, lr
+                 smlad r7, lr, r9, r7
+                 .set slg_p, slg_p + 1"
+            )
+        };
+        (first) => {
+            FULL_CHUNK!("smuad r4, r10, r8", "smuad r7, r12, r8")
+        };
+        () => {
+            FULL_CHUNK!("smlad r4, r10, r8, r4", "smlad r7, r12, r8, r7")
+        };
+    }
+
+    /// Clears the six accumulators in 4 instructions: UMULL of 0 × 0 clears a register pair.
+    macro_rules! FULL_CLEAR {
+        () => {
+            "mov.w r4, #0
+             mov.w r7, #0
+             umull r2, r3, r4, r4
+             umull r5, r6, r4, r4"
+        };
+    }
+
+    /// Words of the full-h kernel's stack copy of the activations (x then h, x right-aligned
+    /// to chunk position MAX_BLOCK_X_CHUNKS).
+    const FULL_ACT_WORDS: usize = 2 * (super::MAX_BLOCK_X_CHUNKS + super::MAX_BLOCK_H_CHUNKS);
+    /// Bytes of one `FULL_CHUNK`.
+    const FULL_CHUNK_BYTES: usize = 72;
+    // The copy moves h 8 words (4 chunks) per pass; the h part has a first chunk.
+    const _: () =
+        assert!(super::MAX_BLOCK_H_CHUNKS.is_multiple_of(4) && super::MAX_BLOCK_H_CHUNKS >= 1);
+
+    /// The blocked kernel for a full h part (MAX_BLOCK_H_CHUNKS chunks: the paper's models,
+    /// H = 128) and any x part up to MAX_BLOCK_X_CHUNKS: the activations are copied once to
+    /// the stack, x ending where h starts, and read at fixed offsets from sp, so r1 holds the
+    /// output pointer and each chunk's six loads pipeline (19 cycles per 16 MACs). Chunk
+    /// position p reads its activations at `sp + 8·p` and its weights at `r0 + 16·p`, with r0
+    /// = the block's weights − 16·(MAX_BLOCK_X_CHUNKS − x chunks); the x part is entered at
+    /// its first chunk (a computed jump, the only one besides none for the h part).
+    ///
+    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_blocks`] checks,
+    /// with exactly MAX_BLOCK_H_CHUNKS h chunks.
+    #[inline(never)]
+    unsafe fn lstm_block_kernel_full(p: &BlockParams) {
+        // Registers in the chunks: r0 the block's weights (offset as above), r1 output
+        // pointer, r2-r7 accumulators, r8-r9 activation words, r10-r12 and lr weight words.
+        // Stack: [sp] the activations (FULL_ACT_WORDS words), then out_end, the x entry, the
+        // bytes per block.
+        // SAFETY: see the caller; every memory access is inside the buffers `p` describes or
+        // the kernel's own stack frame (x's copy starts at chunk position MAX − x chunks ≥ 0).
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "sub sp, sp, #{frame}",
+                "ldr r1, [r0, #16]",
+                "str r1, [sp, #{end_at}]",
+                // x entry: the end of the unrolled x chunks - x chunks · 72 (ADR on a word
+                // boundary, as in `lstm_kernel`); bytes per block 16 · (x + h chunks).
+                "ldr r3, [r0, #20]",
+                "movs r4, #{chunk_bytes}",
+                ".p2align 2",
+                "adr.w r5, 12f",
+                "mls r5, r3, r4, r5",
+                "orr r5, r5, #1",
+                "str r5, [sp, #{entry_at}]",
+                "lsls r4, r3, #4",
+                "add.w r4, r4, #{h_bytes}",
+                "str r4, [sp, #{adv_at}]",
+                // Copy x (2 words per chunk) to chunk position MAX - x chunks (r2), h after it.
+                "rsb r2, r3, #{xmax}",
+                "add.w r12, sp, r2, lsl #3",
+                "ldr r1, [r0, #4]",
+                "cbz r3, 13f",
+                "14:",
+                "ldmia r1!, {{r4, r5}}",
+                "stmia r12!, {{r4, r5}}",
+                "subs r3, r3, #1",
+                "bne 14b",
+                "13:",
+                "add.w r12, sp, #{h_at}",
+                "ldr r1, [r0, #8]",
+                "movs r3, #{hpasses}",
+                "10:",
+                "ldmia r1!, {{r4-r11}}",
+                "stmia r12!, {{r4-r11}}",
+                "subs r3, r3, #1",
+                "bne 10b",
+                "ldr r1, [r0, #12]",
+                "ldr r0, [r0, #0]",
+                "sub.w r0, r0, r2, lsl #4",
+                FULL_CLEAR!(),
+                "ldr pc, [sp, #{entry_at}]",
+                // Block loop: x part (entered at its first chunk, accumulators clear). Every
+                // instruction of the loop is 32-bit and word-aligned (none straddles a line).
+                ".p2align 2",
+                "11:",
+                ".set slg_p, 0",
+                ".rept {xmax}",
+                FULL_CHUNK!(),
+                ".endr",
+                "12:",
+                ".if (12b - 11b) != {chunk_bytes} * {xmax}",
+                ".error \"dsp full-h kernel: unrolled x chunk is not 72 bytes\"",
+                ".endif",
+                BLOCK_EXTRACT!(),
+                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0].
+                "str.w r4, [r1]",
+                "str.w r2, [r1, #8]",
+                "str.w r7, [r1, #16]",
+                "str.w r5, [r1, #24]",
+                // h part: the first chunk starts r4 and r7; r4 (stored) is 0 for UMULL.
+                "mov.w r4, #0",
+                "umull r2, r3, r4, r4",
+                "umull r5, r6, r4, r4",
+                FULL_CHUNK!(first),
+                ".rept {hchunks} - 1",
+                FULL_CHUNK!(),
+                ".endr",
+                BLOCK_EXTRACT!(),
+                "str.w r4, [r1, #4]",
+                "str.w r2, [r1, #12]",
+                "str.w r7, [r1, #20]",
+                "str.w r5, [r1, #28]",
+                "ldr.w r8, [sp, #{end_at}]",
+                "ldr.w r9, [sp, #{adv_at}]",
+                "adds.w r1, r1, #32",
+                "add.w r0, r0, r9",
+                FULL_CLEAR!(),
+                "cmp.w r1, r8",
+                "beq.w 9f",
+                "ldr pc, [sp, #{entry_at}]",
+                "9:",
+                "add sp, sp, #{frame}",
+                "pop {{r4-r11, lr}}",
+                frame = const 4 * FULL_ACT_WORDS + 16,
+                end_at = const 4 * FULL_ACT_WORDS,
+                entry_at = const 4 * FULL_ACT_WORDS + 4,
+                adv_at = const 4 * FULL_ACT_WORDS + 8,
+                h_at = const 8 * super::MAX_BLOCK_X_CHUNKS,
+                h_bytes = const 16 * super::MAX_BLOCK_H_CHUNKS,
+                xmax = const super::MAX_BLOCK_X_CHUNKS,
+                hpasses = const super::MAX_BLOCK_H_CHUNKS / 4,
+                hchunks = const super::MAX_BLOCK_H_CHUNKS,
+                chunk_bytes = const FULL_CHUNK_BYTES,
                 inout("r0") p as *const BlockParams => _,
                 out("r1") _,
                 out("r2") _,

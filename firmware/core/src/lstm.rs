@@ -18,8 +18,8 @@
 use crate::activation::{self, sigmoid, tanh};
 use crate::blob::{LstmRowParams, LstmTensors};
 use crate::dsp::{
-    CellParams, lstm_block_sums, lstm_cell_update, lstm_gate_rows, lstm_gate_sums,
-    permute_q15_uninit,
+    CellParams, lstm_block_sums, lstm_cell_update, lstm_gate_rows, lstm_gate_rows_folded,
+    lstm_gate_sums, permute_q15_uninit,
 };
 use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
 use crate::{MAX_HIDDEN, MAX_INPUT};
@@ -80,6 +80,43 @@ fn requant(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
         // i64: acc_x < 2^26 and acc_h < 2^29 times a multiplier < 2^31 stay below 2^61.
         requant_wide(p, acc_x as i64 * p.mx as i64 + acc_h as i64 * p.mh as i64)
     }
+}
+
+/// Largest |bias_q12| of a folded row ([`fold_row`]): with it the 64-bit sum's high word
+/// cannot overflow (see [`requant_folded`]).
+pub const FOLDED_ADDEND_MAX: i64 = 1 << 30;
+
+/// A row's parameters in the *folded* form of a RAM image ([`crate::model_ram`]), or `None` if
+/// the row has none (a shift outside 33..=62, or an addend over [`FOLDED_ADDEND_MAX`]): mx and mh
+/// as they are, `bias_q12` = C = 2^k + bias·2^(k+1) and `shift` = d = k + 1 (1..=30), with
+/// k = shift − 33. [`requant_folded`] of the result is [`requant`] of `p`.
+pub fn fold_row(p: &LstmRowParams) -> Option<LstmRowParams> {
+    let k = p.shift.checked_sub(33).filter(|k| (0..30).contains(k))?;
+    let c = (1i64 << k) + (p.bias_q12 as i64) * (1i64 << (k + 1));
+    if c.abs() > FOLDED_ADDEND_MAX {
+        return None;
+    }
+    Some(LstmRowParams {
+        mx: p.mx,
+        mh: p.mh,
+        bias_q12: c as i32,
+        shift: k + 1,
+    })
+}
+
+/// [`requant`] from a folded row ([`fold_row`]):
+/// `sat16(⌊(C·2^32 + acc_x·mx + acc_h·mh) / 2^32⌋ >> d)`. The same number: with shift = d + 32 and k = d − 1, ⌊(z + 2^(shift−1)) / 2^shift⌋ =
+/// ⌊(⌊z / 2^32⌋ + 2^k) / 2^(k+1)⌋ (nested floors), and adding the bias inside the floor as
+/// bias·2^(k+1) gives ⌊(⌊z / 2^32⌋ + C) / 2^d⌋; ⌊z / 2^32⌋ + C is the high word of
+/// z + C·2^32. No overflow: |z| < 2^61 (see [`requant`]) so |⌊z / 2^32⌋| ≤ 2^29, and
+/// |C| ≤ 2^30: the high word stays within i32, and sat16 of the exact sum t + bias is what the
+/// saturating add and the saturation give. One SMLAL pair, ASR, SSAT on the M4.
+#[inline(always)]
+fn requant_folded(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
+    let z = ((p.bias_q12 as i64) << 32)
+        .wrapping_add(acc_x as i64 * p.mx as i64)
+        .wrapping_add(acc_h as i64 * p.mh as i64);
+    sat_i16(((z >> 32) as i32) >> (p.shift as u32 & 31))
 }
 
 /// [`requant`]'s definition: round, add the bias and saturate in `i64`.
@@ -212,9 +249,15 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
     let (sig_if, rest) = acc.split_at_mut((2 * hn).min(rows));
     let (cand, sig_o) = rest.split_at_mut(hn.min(rest.len()));
     let params = |from: usize| t.rows.get(from..).unwrap_or(&[]);
-    gate_activations(sig_if, params(0), false);
-    gate_activations(cand, params(2 * hn), true);
-    gate_activations(sig_o, params(3 * hn), false);
+    // A RAM image's rows are folded (validated by the blob parser).
+    let gates = if t.blocked {
+        gate_activations_folded
+    } else {
+        gate_activations
+    };
+    gates(sig_if, params(0), false);
+    gates(cand, params(2 * hn), true);
+    gates(sig_o, params(3 * hn), false);
     // Pass 2, unit by unit: the cell update from the four gates i, f, g, o.
     let k = CellShifts::new(t.cell_frac_bits);
     if rows == 4 * hn {
@@ -273,6 +316,24 @@ pub fn gate_activations(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
     }
 }
 
+/// [`gate_activations`] for folded rows ([`fold_row`]: a RAM image's): `a[0] =
+/// f(requant_folded(p, a[0], a[1]))`, in assembly ([`crate::dsp::lstm_gate_rows_folded`]) where
+/// it runs, else [`gate_activations_folded_portable`]. Rows not in the folded form (d outside
+/// 1..=30, |C| over [`FOLDED_ADDEND_MAX`]) give unspecified activations.
+pub fn gate_activations_folded(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
+    if !lstm_gate_rows_folded(acc, p, activation::table(tanh)) {
+        gate_activations_folded_portable(acc, p, tanh);
+    }
+}
+
+/// The reference of [`gate_activations_folded`], all in Rust.
+pub fn gate_activations_folded_portable(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
+    let f = if tanh { activation::tanh } else { sigmoid };
+    for (a, p) in acc.iter_mut().zip(p) {
+        a[0] = f(requant_folded(p, a[0], a[1])) as i32;
+    }
+}
+
 /// The reference of [`gate_activations`], all in Rust.
 pub fn gate_activations_portable(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
     let f = if tanh { activation::tanh } else { sigmoid };
@@ -295,6 +356,57 @@ mod tests {
                 assert_eq!(shifts, asm_form, "C = {cb}, c = {c}");
             }
         }
+    }
+
+    #[test]
+    fn folded_rows_requantise_as_the_blob_rows() {
+        let mut x = 0x2545_F491u32;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x
+        };
+        let edges = [0, 1, -1, i32::MAX, i32::MIN, 1 << 28, -(1 << 28)];
+        let (mut folded, mut refused) = (0, 0);
+        for shift in 1..=62 {
+            for k in 0..4000 {
+                let pick = |r: u32, bits: u32| -> i32 {
+                    let v = if k < 49 {
+                        edges[(r % 7) as usize]
+                    } else {
+                        r as i32
+                    };
+                    v >> (32 - bits)
+                };
+                let p = LstmRowParams {
+                    mx: pick(next(), 32),
+                    mh: pick(next(), 32),
+                    bias_q12: pick(next(), 1 + next() % 32),
+                    shift,
+                };
+                let Some(f) = fold_row(&p) else {
+                    refused += 1;
+                    let k = shift - 33;
+                    let c = (1i64 << k.clamp(0, 40)) + p.bias_q12 as i64 * (2i64 << k.clamp(0, 40));
+                    assert!(
+                        !(0..30).contains(&k) || c.abs() > FOLDED_ADDEND_MAX,
+                        "{p:?}"
+                    );
+                    continue;
+                };
+                folded += 1;
+                assert!((1..=30).contains(&f.shift), "{p:?}");
+                let (ax, ah) = (pick(next(), 27), pick(next(), 30));
+                let z = ax as i64 * p.mx as i64 + ah as i64 * p.mh as i64;
+                assert_eq!(
+                    requant_folded(&f, ax, ah),
+                    requant_wide(&p, z),
+                    "{p:?} {ax} {ah}"
+                );
+            }
+        }
+        assert!(folded > 50_000 && refused > 100_000, "{folded} {refused}");
     }
 
     #[test]

@@ -5,7 +5,8 @@
 //! channel step and stalls on nearly every line. A copy in SRAM is read at one word per cycle.
 //! [`ModelRam::load`] validates a blob where it lies (CRC, version, sizes: [`ModelBlob::parse`])
 //! and copies it into the buffer as a RAM image (the LSTM weights re-laid for the
-//! register-blocked kernel, [`crate::dsp::lstm_block_sums`]; the image carries its own CRC);
+//! register-blocked kernel, [`crate::dsp::lstm_block_sums`], the LSTM row parameters folded for
+//! the gate pass, [`crate::lstm::fold_row`]; the image carries its own CRC);
 //! the caller then parses the copy (the CRC is checked again, now on what will run). Call it at boot, and again after a new
 //! blob has been written to the model region (drop every [`crate::model::Model`] that borrows
 //! the copy first: the borrow checker insists).
@@ -13,8 +14,9 @@
 //! The buffer must not live in the STM32F405's CCM if a DMA stream is ever to read the model;
 //! the kernels themselves read it from either (both have no wait states).
 
-use crate::blob::{BlobError, CRC_LEN, CRC32, IMAGE_MAGIC, ModelBlob};
+use crate::blob::{BlobError, CRC_LEN, CRC32, IMAGE_MAGIC, LstmRowParams, ModelBlob};
 use crate::dsp::pack_lstm_blocks;
+use crate::lstm::fold_row;
 
 /// Bytes a [`ModelRam`] holds by default: a single-LSTM model of the paper's size (variant (c),
 /// hidden 128, 11 inputs) is 80 432 bytes, its RAM image 4 more; 80 KiB holds any single-LSTM
@@ -108,14 +110,35 @@ impl<const N: usize> ModelRam<N> {
         Ok(self.bytes())
     }
 
-    /// Rewrites the copy's LSTM weight tensors in the blocked layout; false if one cannot be.
+    /// Rewrites the copy's LSTM weight tensors in the blocked layout and their row parameters
+    /// in the folded form of [`fold_row`] (the rounding half and the bias in one addend, for
+    /// the gate pass); false if one cannot be.
     fn relayout(&mut self, blob: &ModelBlob<'_>, src: &[u8]) -> bool {
+        let offset = |p: usize| p.wrapping_sub(src.as_ptr() as usize);
         blob.lstms().iter().all(|l| {
-            let at = (l.weights.as_ptr() as usize).wrapping_sub(src.as_ptr() as usize);
+            let at = offset(l.weights.as_ptr() as usize);
             let Some(dst) = self.bytes.get_mut(at..at + l.weights.len()) else {
                 return false;
             };
-            pack_lstm_blocks(l.weights, l.row_len, bytemuck::cast_slice_mut(dst))
+            if !pack_lstm_blocks(l.weights, l.row_len, bytemuck::cast_slice_mut(dst)) {
+                return false;
+            }
+            let at = offset(l.rows.as_ptr() as usize);
+            let len = core::mem::size_of_val(l.rows);
+            let Some(Ok(dst)) = self
+                .bytes
+                .get_mut(at..at + len)
+                .map(bytemuck::try_cast_slice_mut::<u8, LstmRowParams>)
+            else {
+                return false;
+            };
+            l.rows.iter().zip(dst).all(|(p, d)| match fold_row(p) {
+                Some(f) => {
+                    *d = f;
+                    true
+                }
+                None => false,
+            })
         })
     }
 
@@ -171,11 +194,18 @@ mod tests {
         assert_eq!(copy[..4], IMAGE_MAGIC);
         let copy = AlignedBlob::new(&copy);
         let (a, b) = (copy.parse().unwrap(), src.parse().unwrap());
-        // The fingerprint stays the blob's CRC; the weights are re-laid, the rest is the same.
+        // The fingerprint stays the blob's CRC; the weights are re-laid and the row
+        // parameters folded, the rest is the same.
         assert_eq!((a.crc, a.len, a.config), (b.crc, b.len, b.config));
         assert!(a.lstm[0].blocked && !b.lstm[0].blocked);
         assert_ne!(a.lstm[0].weights, b.lstm[0].weights);
-        assert_eq!(a.lstm[0].rows, b.lstm[0].rows);
+        let folded: Vec<_> = b.lstm[0]
+            .rows
+            .iter()
+            .map(|p| fold_row(p).unwrap())
+            .collect();
+        assert_eq!(a.lstm[0].rows, &folded[..]);
+        assert_ne!(a.lstm[0].rows, b.lstm[0].rows);
         same_steps(src.as_bytes(), copy.as_bytes());
         // A flipped bit anywhere in the image is caught by its own CRC.
         for at in [2, 3000, 40_000, copy.as_bytes().len() - 6] {
@@ -210,6 +240,37 @@ mod tests {
         let copy = ram.load(edited.as_bytes()).unwrap().to_vec();
         assert!(copy == edited.as_bytes(), "not a plain copy");
         same_steps(edited.as_bytes(), AlignedBlob::new(&copy).as_bytes());
+    }
+
+    #[test]
+    fn rows_that_cannot_fold_give_a_plain_copy() {
+        // A shift of 32 (valid in a blob, below the folded form's 33..=62): a plain copy, and
+        // an image whose rows are not folded is refused by the parser.
+        let src = golden();
+        let b = src.parse().unwrap();
+        let at = b.lstm[0].rows.as_ptr() as usize - src.as_bytes().as_ptr() as usize;
+        let mut bytes = src.as_bytes().to_vec();
+        bytes[at + 12..at + 16].copy_from_slice(&32i32.to_le_bytes());
+        let n = bytes.len() - 4;
+        let crc = CRC32.checksum(&bytes[..n]);
+        bytes[n..].copy_from_slice(&crc.to_le_bytes());
+        let edited = AlignedBlob::new(&bytes);
+        let mut ram = Box::new(ModelRam::<MODEL_RAM_BYTES>::new());
+        let copy = ram.load(edited.as_bytes()).unwrap().to_vec();
+        assert!(copy == edited.as_bytes(), "not a plain copy");
+        same_steps(edited.as_bytes(), AlignedBlob::new(&copy).as_bytes());
+        // The golden image with one row unfolded (d = 31) and its CRC redone.
+        let mut image = ram.load(src.as_bytes()).unwrap().to_vec();
+        image[at + 12..at + 16].copy_from_slice(&31i32.to_le_bytes());
+        let m = image.len() - 4;
+        let crc = CRC32.checksum(&image[..m]);
+        image[m..].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(
+            AlignedBlob::new(&image).parse().err(),
+            Some(BlobError::QuantParam(
+                crate::blob::TensorKind::LstmRowParams
+            ))
+        );
     }
 
     #[test]

@@ -251,15 +251,21 @@ struct BlockRows([i8; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
 /// The register-blocked LSTM kernel (`lstm_block_sums`, assembly on this target) on weights
 /// packed by `pack_lstm_blocks` against the row-major portable kernel on the original weights
 /// (`lstm_gate_sums_portable`, an independent path: other layout, other activation order), for
-/// every x part of 0..=3 chunks and h part of 0..=32 chunks, on random and extreme data; plus a
-/// misaligned and a too-short view (the portable fallback).
+/// every x part of 0..=MAX_BLOCK_X_CHUNKS chunks and h part of 0..=MAX_BLOCK_H_CHUNKS chunks, on
+/// random and extreme data; the full h part (the straight-line full-h kernel, every x entry)
+/// with 8 more random rounds; plus a misaligned view (the portable fallback).
 fn check_block_kernel() {
     let mut rng = Rng(0xb10c_0001);
     let mut first_bad: Option<(&str, u32, usize, usize)> = None;
     let mut cases = 0u32;
-    for pattern in 0..4u32 {
+    for round in 0..12u32 {
+        // Rounds 0..4: the four data patterns; from 4 on, random data for the full h part.
+        let pattern = if round < 4 { round } else { 0 };
         for xc in 0..=MAX_BLOCK_X_CHUNKS {
             for hc in 0..=MAX_BLOCK_H_CHUNKS {
+                if round >= 4 && hc != MAX_BLOCK_H_CHUNKS {
+                    continue;
+                }
                 let (hh, stride) = (4 * xc, 4 * (xc + hc));
                 let len = BLOCK_CHECK_ROWS * stride;
                 // Row-major weights in [-127, 127] (the exporter's range), -128 in a rows too.
@@ -331,7 +337,7 @@ fn check_block_kernel() {
                 lstm_gate_sums_portable(&w.0[..len], stride, hh, &xp[..xpn], &hp[..hpn], &mut want);
                 let mut packed = BlockRows([0; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
                 if !pack_lstm_blocks(&w.0[..len], stride, &mut packed.0[..len]) && stride > 0 {
-                    first_bad.get_or_insert(("pack refused", pattern, xc, hc));
+                    first_bad.get_or_insert(("pack refused", round, xc, hc));
                     continue;
                 }
                 // Aligned (assembly), then one byte off (portable fallback, after a copy).
@@ -351,7 +357,7 @@ fn check_block_kernel() {
                     );
                     cases += 1;
                     if got[..] != want[..] {
-                        first_bad.get_or_insert((name, pattern, xc, hc));
+                        first_bad.get_or_insert((name, round, xc, hc));
                     }
                 }
             }
@@ -359,7 +365,7 @@ fn check_block_kernel() {
     }
     hprintln!("lstm blocked kernel: {} cases", cases);
     harness::check_equal(
-        "lstm blocked kernel == row-major portable (first layout, pattern, x chunks, h chunks)",
+        "lstm blocked kernel == row-major portable (first layout, round, x chunks, h chunks)",
         &first_bad,
         &None,
     );
@@ -367,10 +373,12 @@ fn check_block_kernel() {
 
 /// The assembly gate pass (`lstm::gate_activations`) against the Rust one, σ and tanh, on
 /// random sums and parameters: shifts 33..=62 (assembly) mixed with 1..=32 (the rows the
-/// assembly leaves to Rust), extreme sums, biases and multipliers.
+/// assembly leaves to Rust), extreme sums, biases and multipliers; and the folded gate pass of a
+/// RAM image (`lstm::gate_activations_folded`) on the rows that fold, against the blob rows.
 fn check_gate_pass() {
     let mut rng = Rng(0x5eed_1234);
     let mut first_bad = None;
+    let (mut first_folded_bad, mut folded_rows) = (None, 0usize);
     for round in 0..40u32 {
         let mut acc = [[0i32; 2]; 64];
         let mut params = [LstmRowParams {
@@ -411,7 +419,37 @@ fn check_gate_pass() {
                 first_bad = Some((round, tanh));
             }
         }
+        // The folded rows of a RAM image (`lstm::fold_row`), assembly and Rust, against the
+        // blob rows' Rust gate pass: every row of the round that folds, 1..=64 of them (every
+        // loop entry), the count varied by round.
+        let mut fa = [[0i32; 2]; 64];
+        let mut fp = [params[0]; 64];
+        let mut op = [params[0]; 64];
+        let mut m = 0;
+        for (a, p) in acc.iter().zip(&params) {
+            if let (Some(f), true) = (lstm::fold_row(p), m < 64 - (round as usize % 4)) {
+                (fa[m], fp[m], op[m]) = (*a, f, *p);
+                m += 1;
+            }
+        }
+        // All of them (8-row passes and single rows), and short counts (single rows only).
+        for (len, tanh) in [(m, false), (m, true), (m.min(1), false), (m.min(7), true)] {
+            let (mut got, mut port, mut want) = (fa, fa, fa);
+            lstm::gate_activations_folded(black_box(&mut got[..len]), &fp[..len], tanh);
+            lstm::gate_activations_folded_portable(&mut port[..len], &fp[..len], tanh);
+            lstm::gate_activations_portable(&mut want[..len], &op[..len], tanh);
+            if (got != want || port != want) && first_folded_bad.is_none() {
+                first_folded_bad = Some((round, tanh));
+            }
+            folded_rows += len;
+        }
     }
+    hprintln!("lstm gate pass, folded rows: {} rows", folded_rows);
+    harness::check_equal(
+        "lstm folded gate pass asm == portable == blob rows (first round, tanh)",
+        &first_folded_bad,
+        &None,
+    );
     harness::check_equal(
         "lstm gate pass asm == portable (first round, tanh)",
         &first_bad,
@@ -478,6 +516,34 @@ fn check_cell_update() {
 /// for a misaligned view.
 #[repr(C, align(4))]
 struct Acts([i16; MAX_N + 2]);
+
+/// `dsp::isqrt_u32` (VSQRT.F32 and a correction on this target) against `u32::isqrt`: the
+/// ends, every k² − 1, k², k² + 1 for k = 0..=65535, and 20 000 random values.
+fn check_isqrt() {
+    let mut rng = Rng(0x5a27_0001);
+    let mut first_bad = None;
+    let mut check = |n: u32| {
+        if slipguard_core::dsp::isqrt_u32(black_box(n)) != n.isqrt() && first_bad.is_none() {
+            first_bad = Some(n);
+        }
+    };
+    for n in [0, 1, 2, 3, u32::MAX, u32::MAX - 1, 1 << 31, (1 << 24) + 1] {
+        check(n);
+    }
+    for k in 0..=65535u32 {
+        let sq = k * k;
+        check(sq);
+        check(sq.wrapping_sub(1));
+        check(sq.saturating_add(1));
+        check(sq.saturating_add(2 * k));
+    }
+    for _ in 0..20_000 {
+        let r = rng.next();
+        check(r);
+        check(r >> (r % 32));
+    }
+    harness::check_equal("isqrt_u32 == u32::isqrt (first n)", &first_bad, &None);
+}
 
 /// `dot_i8_i16_fast` (assembly for whole groups of 8 on this target) against `dot_i8_i16`
 /// for every length 0..=MAX_N, random and extreme data, aligned and misaligned.
@@ -579,6 +645,7 @@ fn main() -> ! {
     check_gate_pass();
     check_cell_update();
     check_dense_kernel();
+    check_isqrt();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,

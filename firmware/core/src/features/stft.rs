@@ -423,7 +423,7 @@ impl Default for StftState {
 /// take the 32-bit path alone.
 fn isqrt_u64(n: u64) -> u32 {
     if n <= u64::from(u32::MAX) {
-        return (n as u32).isqrt();
+        return crate::dsp::isqrt_u32(n as u32);
     }
     // Normalise by an even shift (the root then shifts by half) so that the top 32 bits are
     // >= 2^30, the algorithm's precondition a3 >= b/4 for b = 2^16.
@@ -433,7 +433,7 @@ fn isqrt_u64(n: u64) -> u32 {
     let hi = (n >> 32) as u32;
     let lo = n as u32;
     // s1 in [2^15, 2^16), r1 = hi - s1² in [0, 2·s1].
-    let s1 = hi.isqrt();
+    let s1 = crate::dsp::isqrt_u32(hi);
     let r1 = hi - s1 * s1;
     // q = ⌊(r1·2^16 + lo>>16) / (2·s1)⌋ (next 16 root bits, with the top 16 bits of lo). The
     // dividend has up to 33 bits, so halve it and divide by s1: ⌊⌊a/2⌋/s⌋ = ⌊a/2s⌋.
