@@ -528,11 +528,11 @@ fn product_eval(
         let hc = slipguard_core::decision::HandConfig::of(m.config());
         for w in product::windowed_runs(&m, &test, &cfg)? {
             let t = test.iter().find(|t| t.id == w.trial).copied();
-            if let Some(t) = t {
-                if let Some(sc) = product::score(t, &w.run, &cfg)? {
-                    hand.push(sc.hand);
-                    channel.extend(sc.channels);
-                }
+            if let Some(t) = t
+                && let Some(sc) = product::score(t, &w.run, &cfg)?
+            {
+                hand.push(sc.hand);
+                channel.extend(sc.channels);
             }
             curve_runs.push((w, hc));
         }
@@ -699,11 +699,11 @@ pub fn armed_rows_for_blob(
     let refs: Vec<&Trial> = trials.iter().collect();
     let (mut hand, mut channel) = (Vec::new(), Vec::new());
     for w in product::windowed_runs(&m, &refs, &cfg)? {
-        if let Some(t) = trials.iter().find(|t| t.id == w.trial) {
-            if let Some(sc) = product::score(t, &w.run, &cfg)? {
-                hand.push(sc.hand);
-                channel.extend(sc.channels);
-            }
+        if let Some(t) = trials.iter().find(|t| t.id == w.trial)
+            && let Some(sc) = product::score(t, &w.run, &cfg)?
+        {
+            hand.push(sc.hand);
+            channel.extend(sc.channels);
         }
     }
     let p = Product {
