@@ -129,6 +129,7 @@ pub fn load_trial(path: &Path, rate: f32) -> anyhow::Result<Trial> {
                 grasp_start: Some(l0 as usize),
                 lift_start: Some(l1 as usize),
                 open_start: Some(l2 as usize),
+                release: None,
             };
             t.outcome = if l3 == 1 {
                 Outcome::Success
