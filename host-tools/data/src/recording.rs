@@ -438,9 +438,7 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
                     *line,
                     None,
                     None,
-                    format!(
-                        "rate_hz must be a number in {MIN_RATE_HZ}..={MAX_RATE_HZ}, not `{v}`"
-                    ),
+                    format!("rate_hz must be a number in {MIN_RATE_HZ}..={MAX_RATE_HZ}, not `{v}`"),
                 ));
             }
         },

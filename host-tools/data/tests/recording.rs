@@ -214,8 +214,18 @@ fn body_lines_are_file_lines_after_blank_lines() {
 #[test]
 fn a_very_high_rate_recording_reads_back() {
     // Six decimals would write 0.000000 twice at 10 MHz… the writer widens the time column.
-    for rate in [16.7f32, 1000.0, 71_000.0, slipguard_data::recording::MAX_RATE_HZ] {
-        let t = Trial::new("fast", Unit::MilliNewton, rate, vec![vec![1.0, 2.0, 3.0, 4.0]]);
+    for rate in [
+        16.7f32,
+        1000.0,
+        71_000.0,
+        slipguard_data::recording::MAX_RATE_HZ,
+    ] {
+        let t = Trial::new(
+            "fast",
+            Unit::MilliNewton,
+            rate,
+            vec![vec![1.0, 2.0, 3.0, 4.0]],
+        );
         let back = parse_recording(&to_string(&t), Path::new("fast.csv"))
             .unwrap_or_else(|e| panic!("{rate} Hz: {e}"));
         assert_eq!(back.samples, t.samples, "{rate} Hz");
@@ -256,7 +266,9 @@ fn the_release_mark_round_trips_through_metadata_and_the_phase_column() {
     // From the phase column alone (the monitor's file before its summary): no open mark.
     let no_meta: String = text
         .lines()
-        .filter(|l| !l.starts_with("# release") && !l.starts_with("# grasp") && !l.starts_with("# lift"))
+        .filter(|l| {
+            !l.starts_with("# release") && !l.starts_with("# grasp") && !l.starts_with("# lift")
+        })
         .map(|l| format!("{l}\n"))
         .collect();
     let back = parse_recording(&no_meta, Path::new("rel.csv")).unwrap();
@@ -288,7 +300,13 @@ fn the_appender_writes_what_the_reader_reads() {
     let p = dir.join("a.csv");
     let meta = Trial::new("a", Unit::MilliNewton, 16.7, vec![vec![], vec![]]);
     let mut w = Appender::create(&p, &meta).unwrap();
-    let phases = [Phase::Pre, Phase::Grasp, Phase::Grasp, Phase::Lift, Phase::Release];
+    let phases = [
+        Phase::Pre,
+        Phase::Grasp,
+        Phase::Grasp,
+        Phase::Lift,
+        Phase::Release,
+    ];
     for (i, ph) in phases.iter().enumerate() {
         w.push(&[i as f32, 0.5], *ph).unwrap();
     }
