@@ -39,6 +39,8 @@ pub enum Script {
 pub struct Args {
     /// The trial: a recording (.csv, docs/data-format.md), an eagle-shoal trial folder, or a plain
     /// `tactile.csv` (header c0…c15, one row per step; marks from a sibling `<name>.meta.json`).
+    /// A folder of recordings (or the eagle-shoal root) replays each trial: `--out` and `--png`
+    /// are then folders (`<id>.bin`, `<id>.png`).
     pub trial: PathBuf,
     /// Model blob (default: models/hand-force/*.bin or models/suction/*.bin, first in name
     /// order, else the golden untrained blob).
@@ -144,8 +146,53 @@ pub fn load_trial(path: &Path, rate: f32) -> anyhow::Result<Trial> {
     Ok(t)
 }
 
+/// The trials of `path`: one, or every trial of a folder of recordings or dataset.
+fn load_trials(path: &Path, rate: f32) -> anyhow::Result<Vec<Trial>> {
+    if path.is_dir() {
+        let v = slipguard_data::load_path(path, &LabelConfig::default(), |_, _| {})
+            .with_context(|| format!("loading {}", path.display()))?;
+        return Ok(v);
+    }
+    Ok(vec![load_trial(path, rate)?])
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let trial = load_trial(&a.trial, a.rate)?;
+    let trials = load_trials(&a.trial, a.rate)?;
+    if trials.len() == 1 {
+        let (out, png) = (a.out.clone(), a.png.clone());
+        return run_one(&a, &trials[0], out.as_deref(), png.as_deref());
+    }
+    if a.port.is_some() {
+        bail!(
+            "{} holds {} trials: --port sends one; give one trial",
+            a.trial.display(),
+            trials.len()
+        );
+    }
+    for dir in [&a.out, &a.png].into_iter().flatten() {
+        anyhow::ensure!(
+            dir != Path::new("-"),
+            "{} holds {} trials: --out and --png are folders here",
+            a.trial.display(),
+            trials.len()
+        );
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    for t in &trials {
+        let out = a.out.as_ref().map(|d| d.join(format!("{}.bin", t.id)));
+        let png = a.png.as_ref().map(|d| d.join(format!("{}.png", t.id)));
+        run_one(&a, t, out.as_deref(), png.as_deref())?;
+    }
+    Ok(())
+}
+
+fn run_one(
+    a: &Args,
+    trial: &Trial,
+    out_path: Option<&Path>,
+    png: Option<&Path>,
+) -> anyhow::Result<()> {
+    let trial = trial.clone();
     let profile = match a.profile {
         ProfileArg::Auto => replay::profile_for(&trial),
         ProfileArg::Hand => Profile::HAND,
@@ -156,6 +203,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| replay::default_models(&profile).remove(0));
     let blob = replay::load_blob(&model)?;
+    // The model takes the profile's channels: a trial with more is refused (they would be
+    // dropped), one with fewer is padded with zero-force channels.
+    if trial.n_channels() > profile.channels {
+        bail!(
+            "{}: {} channels, the profile (the model's input) takes {}: record with the \
+             profile's channel count or pass --profile",
+            trial.id,
+            trial.n_channels(),
+            profile.channels
+        );
+    }
+    if trial.n_channels() < profile.channels {
+        eprintln!(
+            "replay: {}: {} channels, the profile takes {}: channels {}.. replay as 0",
+            trial.id,
+            trial.n_channels(),
+            profile.channels,
+            trial.n_channels()
+        );
+    }
     let rate_mhz = match replay::check_rate(&trial, blob.as_bytes()) {
         Ok(r) => r.unwrap_or(profile.default_rate_mhz()),
         Err(e) if a.any_rate => {
@@ -207,14 +274,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         n_faults,
         out.wire.len()
     );
-    match a.out.as_deref() {
+    match out_path {
         Some(p) if p == Path::new("-") => std::io::stdout().write_all(&out.wire)?,
         Some(p) => {
             std::fs::write(p, &out.wire).with_context(|| format!("writing {}", p.display()))?
         }
         None => {}
     }
-    if let Some(png) = &a.png {
+    if let Some(png) = png {
         let flags = replay::flags_by_frame(&frames, rate_mhz, trial.n_steps());
         let title = format!(
             "{} ({}), model {}",
