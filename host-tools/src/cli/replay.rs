@@ -28,7 +28,8 @@ pub enum ProfileArg {
 pub enum Script {
     /// No commands: the firmware boots armed and flags from the first frame.
     None,
-    /// Grasp start / release at `--grasp-at` / `--release-at` (default: the trial's grasp mark).
+    /// Grasp start, lift and release at `--grasp-at`, `--lift-at`, `--release-at` (default: the
+    /// trial's marks; lift only echoes a phase mark).
     Marks,
     /// The QEMU comparison's scenario for Cheez_100_814_top_3 (ping, info, line noise, bad CRC,
     /// unknown type, threshold 0.6, grasp start at 52, release at 300, channel 14 open 150–169).
@@ -61,6 +62,13 @@ pub struct Args {
     /// With `--script marks`: release before this frame.
     #[arg(long)]
     pub release_at: Option<u32>,
+    /// With `--script marks`: lift before this frame (default: the trial's lift mark).
+    #[arg(long)]
+    pub lift_at: Option<u32>,
+    /// Send stream mode flags+samples before the first frame (and info), so the frames carry
+    /// the samples stream a `slipguard monitor --capture F --record R` records.
+    #[arg(long)]
+    pub samples: bool,
     /// Disconnect a channel: CHANNEL:FROM:TO (trial steps, TO exclusive); repeatable.
     #[arg(long, value_parser = parse_open_wire)]
     pub open_wire: Vec<OpenWire>,
@@ -242,7 +250,13 @@ fn run_one(
                     command: Command::GraspStart,
                 });
             }
-            if let Some(r) = a.release_at {
+            if let Some(l) = a.lift_at.or(trial.marks.lift_start.map(|l| l as u32)) {
+                cmds.push(Scheduled {
+                    before_frame: l,
+                    command: Command::Lift,
+                });
+            }
+            if let Some(r) = a.release_at.or(trial.marks.release.map(|r| r as u32)) {
                 cmds.push(Scheduled {
                     before_frame: r,
                     command: Command::Release,
@@ -251,6 +265,22 @@ fn run_one(
             cmds.sort_by_key(|c| c.before_frame);
             (replay::encode_script(&cmds), Vec::new())
         }
+    };
+    let script = if a.samples {
+        let mut v = replay::encode_script(&[
+            Scheduled {
+                before_frame: 0,
+                command: Command::Info,
+            },
+            Scheduled {
+                before_frame: 0,
+                command: Command::StreamMode(slipguard_core::protocol::StreamMode::FlagsAndSamples),
+            },
+        ]);
+        v.extend(script);
+        v
+    } else {
+        script
     };
     wires.extend(a.open_wire.iter().copied());
     let out = replay::replay(profile, blob.as_bytes(), &trial, &script, &wires);
