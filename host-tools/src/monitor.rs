@@ -595,11 +595,11 @@ impl Recorder {
                 t_us as f64 / 1e6
             )
         };
-        if self.file.is_none() {
-            if let Err(e) = self.open(t_us, index, n, s.unit) {
-                self.error = Some(e);
-                return;
-            }
+        if self.file.is_none()
+            && let Err(e) = self.open(t_us, index, n, s.unit)
+        {
+            self.error = Some(e);
+            return;
         }
         let next = self.steps();
         if n != self.channels {

@@ -29,7 +29,7 @@ pub enum Script {
     /// No commands: the firmware boots armed and flags from the first frame.
     None,
     /// Grasp start, lift and release at `--grasp-at`, `--lift-at`, `--release-at` (default: the
-    /// trial's marks; lift only echoes a phase mark).
+    /// trial's grasp and release marks, and with --samples its lift mark).
     Marks,
     /// The QEMU comparison's scenario for Cheez_100_814_top_3 (ping, info, line noise, bad CRC,
     /// unknown type, threshold 0.6, grasp start at 52, release at 300, channel 14 open 150–169).
@@ -62,7 +62,8 @@ pub struct Args {
     /// With `--script marks`: release before this frame.
     #[arg(long)]
     pub release_at: Option<u32>,
-    /// With `--script marks`: lift before this frame (default: the trial's lift mark).
+    /// With `--script marks`: lift before this frame (default with --samples: the trial's lift
+    /// mark).
     #[arg(long)]
     pub lift_at: Option<u32>,
     /// Send stream mode flags+samples before the first frame (and info), so the frames carry
@@ -250,7 +251,9 @@ fn run_one(
                     command: Command::GraspStart,
                 });
             }
-            if let Some(l) = a.lift_at.or(trial.marks.lift_start.map(|l| l as u32)) {
+            // The lift only echoes a phase mark: by default sent when recording (--samples).
+            let lift_mark = trial.marks.lift_start.filter(|_| a.samples);
+            if let Some(l) = a.lift_at.or(lift_mark.map(|l| l as u32)) {
                 cmds.push(Scheduled {
                     before_frame: l,
                     command: Command::Lift,
