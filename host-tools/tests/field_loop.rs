@@ -353,5 +353,29 @@ fn field_loop_record_label_train_export_upload_flags_from_the_new_model() {
     );
     assert_eq!(p_after(&field), p_after(&new_ref));
     assert_ne!(p_after(&field), p_after(&old_ref));
+    // And directly through the core: the new blob's model stepped per channel from a reset state
+    // at that grasp start (as the app's inference does) on the samples frames' values, the
+    // model's input as the firmware fed it, gives the flag frames' p(unstable).
+    use slipguard_core::model::{ChannelState, Model};
+    let model = Model::new(new.parse().unwrap()).unwrap();
+    let values: Vec<_> = field
+        .iter()
+        .filter_map(|f| match f.msg {
+            Message::Samples(s) => Some(s),
+            _ => None,
+        })
+        .skip(field_script::GRASP_AGAIN_AT as usize)
+        .collect();
+    let mut states: Vec<ChannelState> = (0..16).map(|_| ChannelState::default()).collect();
+    let mut compared = 0;
+    for (s, p) in values.iter().zip(p_after(&field)) {
+        assert_eq!(s.fault, 0);
+        for c in 0..16 {
+            let out = model.step(&mut states[c], s.value[c]);
+            assert_eq!(out.p_unstable_q15.max(0) as u16, p[c], "channel {c}");
+            compared += 1;
+        }
+    }
+    assert_eq!(compared, 16 * (400 - field_script::GRASP_AGAIN_AT as usize));
     std::fs::remove_dir_all(&dir).ok();
 }
