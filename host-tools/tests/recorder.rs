@@ -358,3 +358,134 @@ fn keyboard_commands_parse() {
         assert!(parse_command(bad).is_err(), "{bad}");
     }
 }
+
+/// `slipguard monitor --port … --record` on a pseudo terminal: it sends info and stream mode
+/// itself, takes keyboard commands, has the rows on disk within about a second while it runs,
+/// and on Ctrl-C (SIGINT) finishes the file with its marks and summary; `--save-raw` keeps the
+/// bytes.
+#[test]
+fn monitor_records_from_a_port_flushes_while_running_and_finishes_on_ctrl_c() {
+    use slipguard_core::protocol::Deframer;
+    use std::io::{Read, Write};
+    use std::process::Stdio;
+    use std::time::{Duration, Instant};
+
+    let (mut master, slave) = serialport::TTYPort::pair().expect("openpty");
+    let name = serialport::SerialPort::name(&slave).expect("slave path");
+    let dir = tmp("port");
+    let (rec, raw) = (dir.join("port.csv"), dir.join("port.bin"));
+    let mut child = Process::new(env!("CARGO_BIN_EXE_slipguard"))
+        .args([
+            "monitor",
+            "--port",
+            &name,
+            "--view",
+            "none",
+            "--seconds",
+            "30",
+        ])
+        .arg("--record")
+        .arg(&rec)
+        .arg("--save-raw")
+        .arg(&raw)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The commands it sends: info and stream mode flags+samples, then the typed lift.
+    serialport::SerialPort::set_timeout(&mut master, Duration::from_millis(100)).unwrap();
+    let mut d = Deframer::new();
+    let mut cmds = Vec::new();
+    let mut typed = false;
+    let t0 = Instant::now();
+    while cmds.len() < 3 && t0.elapsed() < Duration::from_secs(10) {
+        if cmds.len() == 2 && !typed {
+            child
+                .stdin
+                .as_mut()
+                .unwrap()
+                .write_all(b"bogus\nl\n")
+                .unwrap();
+            typed = true;
+        }
+        let mut b = [0u8; 64];
+        if let Ok(n) = master.read(&mut b) {
+            for &x in &b[..n] {
+                if let Some(Ok(f)) = d.push_decode(x) {
+                    cmds.push(f.msg);
+                }
+            }
+        }
+    }
+    assert_eq!(
+        cmds,
+        [
+            Message::Command(Command::Info),
+            Message::Command(Command::StreamMode(StreamMode::FlagsAndSamples)),
+            Message::Command(Command::Lift),
+        ]
+    );
+    // The device's side: 100 samples frames, grasp start at frame 10.
+    let mut sent = wire(0, info(16_700));
+    for i in 0..100u64 {
+        let bits = if i == 10 { mark::GRASP_START } else { 0 };
+        sent.extend(wire(1 + i as u16, samples(ts(i), 2, bits, i as i32)));
+    }
+    master.write_all(&sent).unwrap();
+    master.flush().unwrap();
+    // Within the flush period (plus slack for a loaded machine) the rows are on disk.
+    let t0 = Instant::now();
+    loop {
+        let text = std::fs::read_to_string(&rec).unwrap_or_default();
+        if text
+            .lines()
+            .filter(|l| l.ends_with(",grasp") || l.ends_with(",pre"))
+            .count()
+            == 100
+        {
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(5),
+            "rows not flushed:\n{text}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let unfinished = read_recording(&rec, &LabelConfig::default()).unwrap();
+    assert!(!unfinished.extra.contains_key("monitor_stats"));
+    // Ctrl-C.
+    let st = Process::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "monitor ignores Ctrl-C"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert!(status.success(), "{err}");
+    assert!(err.contains("unknown command `bogus`"), "{err}");
+    let t = read_recording(&rec, &LabelConfig::default()).unwrap();
+    assert_eq!(t.n_steps(), 100);
+    assert_eq!(t.marks.grasp_start, Some(10));
+    assert!(t.extra["monitor_stats"].contains("lost=0"), "{:?}", t.extra);
+    assert_eq!(t.extra["monitor_model_crc"], "0x12345678");
+    assert_eq!(std::fs::read(&raw).unwrap(), sent);
+    drop(slave);
+    std::fs::remove_dir_all(&dir).ok();
+}
