@@ -38,6 +38,10 @@ pub const MIN_RATE_HZ: f32 = 0.001;
 /// 16-channel samples in memory.
 pub const MAX_STEPS: usize = 1 << 20;
 
+/// Largest recording file the reader opens: 1 GiB (2^20 rows of 16 force channels take about
+/// 100 MiB as the writer writes them).
+pub const MAX_BYTES: u64 = 1 << 30;
+
 const KNOWN_KEYS: [&str; 12] = [
     "id",
     "sensor",
@@ -344,6 +348,19 @@ pub fn write_recording(trial: &Trial, path: &Path) -> Result<()> {
 /// Read a recording and annotate it (contact flags; drop step if not stated and
 /// the outcome is not success).
 pub fn read_recording(path: &Path, cfg: &LabelConfig) -> Result<Trial> {
+    // The file's size is checked before it is read into memory.
+    let len = std::fs::metadata(path)
+        .map_err(|e| DataError::io(path, e))?
+        .len();
+    if len > MAX_BYTES {
+        return Err(DataError::Shape {
+            path: path.to_path_buf(),
+            message: format!(
+                "{len} bytes: a recording holds at most {MAX_BYTES} (split it; at most \
+                 {MAX_STEPS} rows)"
+            ),
+        });
+    }
     let text = read_text(path)?;
     let mut trial = parse_recording(&text, path)?;
     annotate(&mut trial, cfg);

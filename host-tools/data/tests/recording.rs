@@ -326,3 +326,16 @@ fn the_appender_writes_what_the_reader_reads() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_file_over_the_size_limit_is_refused_before_reading() {
+    let dir = std::env::temp_dir().join(format!("sg-big-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("big.csv");
+    let f = std::fs::File::create(&p).unwrap();
+    // A sparse file: no disk space, but its length is over the limit.
+    f.set_len(slipguard_data::recording::MAX_BYTES + 1).unwrap();
+    let e = read_recording(&p, &LabelConfig::default()).unwrap_err();
+    assert!(e.to_string().contains("at most"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -154,14 +154,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let mut read_error = None;
 
     if let Some(path) = &a.capture {
-        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        if let Some(r) = &mut raw {
-            r.write_all(&bytes)?;
-        }
-        for chunk in bytes.chunks(64) {
-            mon.push(chunk, |e| on_event(e, &mut out));
-            if done(&mon) || stop.load(Ordering::SeqCst) {
+        // Read in pieces: a capture of any length takes constant memory.
+        let mut f =
+            std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
+        let mut buf = [0u8; 4096];
+        'read: loop {
+            let n = f
+                .read(&mut buf)
+                .with_context(|| format!("reading {}", path.display()))?;
+            if n == 0 {
                 break;
+            }
+            if let Some(r) = &mut raw {
+                r.write_all(&buf[..n])?;
+            }
+            // 64 bytes at a time: `--frames` stops close to the frame it counts.
+            for chunk in buf[..n].chunks(64) {
+                mon.push(chunk, |e| on_event(e, &mut out));
+                if done(&mon) || stop.load(Ordering::SeqCst) {
+                    break 'read;
+                }
             }
         }
     } else {
