@@ -118,6 +118,7 @@ pub fn load_eagle_trial(dir: &Path, cfg: &LabelConfig) -> Result<Trial> {
         grasp_start: Some(step(0)?),
         lift_start: Some(step(1)?),
         open_start: Some(step(2)?),
+        release: None,
     };
     let outcome = match meta.label[3] {
         1 => Outcome::Success,

@@ -187,7 +187,14 @@ pub fn detect_drop(trial: &Trial, cfg: &LabelConfig) -> DropDetection {
     let n = trial.n_steps();
     let g = trial.marks.grasp_start.unwrap_or(0).min(n);
     let start = trial.marks.lift_start.unwrap_or(g).min(n);
-    let end = trial.marks.open_start.unwrap_or(n).min(n).max(start);
+    // The lift window ends at the third mark, else at the controller's release.
+    let end = trial
+        .marks
+        .open_start
+        .or(trial.marks.release)
+        .unwrap_or(n)
+        .min(n)
+        .max(start);
     let dev = deviations(trial);
     let contact = contact_from_dev(
         &dev,

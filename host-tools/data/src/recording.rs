@@ -30,7 +30,19 @@ use crate::trial::{Outcome, Phase, PhaseMarks, SensorKind, Stability, Trial, Uni
 /// First line of every recording.
 pub const MAGIC: &str = "# slipguard-recording v1";
 
-const KNOWN_KEYS: [&str; 11] = [
+/// Highest `rate_hz` a recording may state (reader and writer).
+pub const MAX_RATE_HZ: f32 = 100_000.0;
+/// Lowest `rate_hz` a recording may state (reader and writer).
+pub const MIN_RATE_HZ: f32 = 0.001;
+/// Most data rows of one recording (reader and writer): 2^20 steps, 4.1 h at 71 Hz, 64 MiB of
+/// 16-channel samples in memory.
+pub const MAX_STEPS: usize = 1 << 20;
+
+/// Largest recording file the reader opens: 1 GiB (2^20 rows of 16 force channels take about
+/// 100 MiB as the writer writes them).
+pub const MAX_BYTES: u64 = 1 << 30;
+
+const KNOWN_KEYS: [&str; 12] = [
     "id",
     "sensor",
     "unit",
@@ -39,6 +51,7 @@ const KNOWN_KEYS: [&str; 11] = [
     "grasp_start",
     "lift_start",
     "open_start",
+    "release",
     "drop_step",
     "slip_onset_step",
     "source",
@@ -64,21 +77,22 @@ fn fmt_value(v: f32) -> String {
     }
 }
 
-/// Render a trial in the recording format (LF line endings, final newline).
-pub fn to_string(trial: &Trial) -> String {
+/// The preamble and header of a recording (everything before the data rows).
+fn head(trial: &Trial, has_phase: bool) -> String {
     let mut s = String::new();
     s.push_str(MAGIC);
     s.push('\n');
     let one_line = |v: &str| v.replace(['\n', '\r'], " ");
     let _ = writeln!(s, "# id: {}", one_line(&trial.id));
-    let _ = writeln!(s, "# sensor: {}", trial.sensor);
-    let _ = writeln!(s, "# unit: {}", trial.unit);
+    let _ = writeln!(s, "# sensor: {}", one_line(&trial.sensor.to_string()));
+    let _ = writeln!(s, "# unit: {}", one_line(&trial.unit.to_string()));
     let _ = writeln!(s, "# rate_hz: {}", trial.rate_hz);
     let _ = writeln!(s, "# outcome: {}", trial.outcome);
     let marks = [
         ("grasp_start", trial.marks.grasp_start),
         ("lift_start", trial.marks.lift_start),
         ("open_start", trial.marks.open_start),
+        ("release", trial.marks.release),
         ("drop_step", trial.drop_step),
         ("slip_onset_step", trial.slip_onset_step),
     ];
@@ -93,7 +107,6 @@ pub fn to_string(trial: &Trial) -> String {
     for (k, v) in &trial.extra {
         let _ = writeln!(s, "# {k}: {}", one_line(v));
     }
-    let has_phase = trial.marks != PhaseMarks::default();
     s.push_str("time_s");
     for n in &trial.channel_names {
         s.push(',');
@@ -106,12 +119,30 @@ pub fn to_string(trial: &Trial) -> String {
         s.push_str(",label");
     }
     s.push('\n');
+    s
+}
+
+/// One data row without labels.
+fn row(s: &mut String, decimals: usize, time_s: f64, values: impl Iterator<Item = f32>) {
+    let _ = write!(s, "{:.*}", decimals, time_s);
+    for v in values {
+        s.push(',');
+        s.push_str(&fmt_value(v));
+    }
+}
+
+/// Render a trial in the recording format (LF line endings, final newline).
+pub fn to_string(trial: &Trial) -> String {
+    let has_phase = trial.marks != PhaseMarks::default();
+    let mut s = head(trial, has_phase);
+    let decimals = time_decimals(trial.rate_hz);
     for t in 0..trial.n_steps() {
-        let _ = write!(s, "{:.6}", trial.time_s(t));
-        for c in &trial.samples {
-            s.push(',');
-            s.push_str(&fmt_value(c[t]));
-        }
+        row(
+            &mut s,
+            decimals,
+            trial.time_s(t),
+            trial.samples.iter().map(|c| c[t]),
+        );
         if has_phase {
             s.push(',');
             s.push_str(trial.marks.phase_at(t).name());
@@ -127,9 +158,185 @@ pub fn to_string(trial: &Trial) -> String {
     s
 }
 
+/// A recording written row by row as the data arrives (the monitor's recorder): the preamble
+/// and header of a trial without marks, then one row per [`Appender::push`] with the `phase`
+/// column (which carries the marks), buffered until [`Appender::flush`]. The buffer reaches the
+/// file in whole rows, so a file whose writer died after a flush reads back with every row
+/// flushed (only its final summary metadata is missing).
+#[derive(Debug)]
+pub struct Appender {
+    file: std::io::BufWriter<std::fs::File>,
+    path: std::path::PathBuf,
+    rate_hz: f32,
+    decimals: usize,
+    channels: usize,
+    steps: usize,
+    phase: Phase,
+}
+
+impl Appender {
+    /// Creates `path` with the preamble of `meta` (id, unit, rate, channel names, source and
+    /// extra keys; its samples only give the channel count, its marks and labels are ignored).
+    pub fn create(path: &Path, meta: &Trial) -> Result<Self> {
+        let mut m = meta.clone();
+        m.marks = PhaseMarks::default();
+        m.step_labels = None;
+        m.drop_step = None;
+        m.slip_onset_step = None;
+        let shape = |message| DataError::Shape {
+            path: path.to_path_buf(),
+            message,
+        };
+        check_meta(&m).map_err(shape)?;
+        let f = std::fs::File::create(path).map_err(|e| DataError::io(path, e))?;
+        let mut file = std::io::BufWriter::new(f);
+        file.write_all(head(&m, true).as_bytes())
+            .map_err(|e| DataError::io(path, e))?;
+        Ok(Self {
+            file,
+            path: path.to_path_buf(),
+            rate_hz: m.rate_hz,
+            decimals: time_decimals(m.rate_hz),
+            channels: m.n_channels(),
+            steps: 0,
+            phase: Phase::Pre,
+        })
+    }
+
+    /// Appends one step. Refused: another channel count, a non-finite value, a phase that
+    /// goes back, more than [`MAX_STEPS`] rows.
+    pub fn push(&mut self, values: &[f32], phase: Phase) -> Result<()> {
+        let shape = |message| DataError::Shape {
+            path: self.path.clone(),
+            message,
+        };
+        if values.len() != self.channels {
+            return Err(shape(format!(
+                "step {}: {} values for {} channels",
+                self.steps,
+                values.len(),
+                self.channels
+            )));
+        }
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(shape(format!("step {}: a value is not finite", self.steps)));
+        }
+        if (phase as u8) < (self.phase as u8) {
+            return Err(shape(format!(
+                "step {}: phase goes back from {} to {}",
+                self.steps,
+                self.phase.name(),
+                phase.name()
+            )));
+        }
+        if self.steps >= MAX_STEPS {
+            return Err(shape(format!(
+                "more than {MAX_STEPS} steps (the format's maximum length)"
+            )));
+        }
+        let mut s = String::new();
+        row(
+            &mut s,
+            self.decimals,
+            self.steps as f64 / self.rate_hz as f64,
+            values.iter().copied(),
+        );
+        s.push(',');
+        s.push_str(phase.name());
+        s.push('\n');
+        self.file
+            .write_all(s.as_bytes())
+            .map_err(|e| DataError::io(&self.path, e))?;
+        self.steps += 1;
+        self.phase = phase;
+        Ok(())
+    }
+
+    /// Rows written so far.
+    pub fn steps(&self) -> usize {
+        self.steps
+    }
+
+    /// Hands the buffered rows to the operating system.
+    pub fn flush(&mut self) -> Result<()> {
+        self.file.flush().map_err(|e| DataError::io(&self.path, e))
+    }
+}
+
+/// Writes `trial` to `path` through a temporary file beside it and a rename, so `path` holds
+/// either its previous contents or the whole new recording.
+pub fn replace_recording(trial: &Trial, path: &Path) -> Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = std::path::PathBuf::from(tmp);
+    write_recording(trial, &tmp)?;
+    std::fs::rename(&tmp, path).map_err(|e| DataError::io(path, e))
+}
+
+/// Decimals of the `time_s` column: 6, more above 100 Hz so that a step is at least 10^4
+/// units of the last digit (the reader's 5 % rate check and strictly increasing times hold at
+/// every rate up to [`MAX_RATE_HZ`]).
+pub fn time_decimals(rate_hz: f32) -> usize {
+    let digits = (rate_hz.max(1.0) as f64).log10().ceil() as usize;
+    (digits + 4).max(6)
+}
+
+/// What the reader would refuse in a trial the writer is given: rate and length bounds,
+/// channel names, finite values, metadata keys (so every file written reads back).
+pub fn check_writable(trial: &Trial) -> std::result::Result<(), String> {
+    if trial.n_steps() == 0 || trial.n_steps() > MAX_STEPS {
+        return Err(format!(
+            "{} steps: a recording holds 1..={MAX_STEPS}",
+            trial.n_steps()
+        ));
+    }
+    check_meta(trial)
+}
+
+/// [`check_writable`] but the number of steps.
+fn check_meta(trial: &Trial) -> std::result::Result<(), String> {
+    trial.validate()?;
+    if !(MIN_RATE_HZ..=MAX_RATE_HZ).contains(&trial.rate_hz) {
+        return Err(format!(
+            "rate {} Hz is outside {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz",
+            trial.rate_hz
+        ));
+    }
+    for (i, n) in trial.channel_names.iter().enumerate() {
+        if n.is_empty()
+            || ["time_s", "phase", "label"].contains(&n.as_str())
+            || n.chars()
+                .any(|c| c == ',' || c == '"' || c == '#' || c.is_whitespace())
+            || trial.channel_names[..i].contains(n)
+        {
+            return Err(format!(
+                "channel name `{n}` cannot be a column (empty, reserved, repeated, or with a \
+                 comma, quote, `#` or space)"
+            ));
+        }
+        if let Some(t) = trial.samples[i].iter().position(|v| !v.is_finite()) {
+            return Err(format!("channel `{n}` step {t} is not a finite number"));
+        }
+    }
+    for k in trial.extra.keys() {
+        if k.is_empty()
+            || !k
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+            || KNOWN_KEYS.contains(&k.as_str())
+        {
+            return Err(format!(
+                "metadata key `{k}` must be lower-case letters, digits and `_`, and not one of \
+                 the format's own keys"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Write a trial to `path` in the recording format.
 pub fn write_recording(trial: &Trial, path: &Path) -> Result<()> {
-    trial.validate().map_err(|message| DataError::Shape {
+    check_writable(trial).map_err(|message| DataError::Shape {
         path: path.to_path_buf(),
         message,
     })?;
@@ -141,6 +348,19 @@ pub fn write_recording(trial: &Trial, path: &Path) -> Result<()> {
 /// Read a recording and annotate it (contact flags; drop step if not stated and
 /// the outcome is not success).
 pub fn read_recording(path: &Path, cfg: &LabelConfig) -> Result<Trial> {
+    // The file's size is checked before it is read into memory.
+    let len = std::fs::metadata(path)
+        .map_err(|e| DataError::io(path, e))?
+        .len();
+    if len > MAX_BYTES {
+        return Err(DataError::Shape {
+            path: path.to_path_buf(),
+            message: format!(
+                "{len} bytes: a recording holds at most {MAX_BYTES} (split it; at most \
+                 {MAX_STEPS} rows)"
+            ),
+        });
+    }
     let text = read_text(path)?;
     let mut trial = parse_recording(&text, path)?;
     annotate(&mut trial, cfg);
@@ -228,14 +448,14 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
             });
         }
         Some((_, v, line)) => match v.parse::<f32>() {
-            Ok(r) if r.is_finite() && r > 0.0 => r,
+            Ok(r) if (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&r) => r,
             _ => {
                 return Err(parse_error(
                     path,
                     *line,
                     None,
                     None,
-                    format!("rate_hz must be a positive number, not `{v}`"),
+                    format!("rate_hz must be a number in {MIN_RATE_HZ}..={MAX_RATE_HZ}, not `{v}`"),
                 ));
             }
         },
@@ -319,6 +539,8 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
     let mut times: Vec<(f64, usize)> = Vec::new();
     let mut phases: Vec<Phase> = Vec::new();
     let mut labels: Vec<Option<Stability>> = Vec::new();
+    // The first step of more than 1.5 periods (reported after the rate check).
+    let mut gap = None;
     for r in body {
         let (line, f) = (r.number, r.fields);
         if f[0].starts_with('#') {
@@ -342,6 +564,21 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
                 Some(1),
                 Some("time_s"),
                 format!("time {t} is not after the previous row's {prev}"),
+            ));
+        }
+        if let Some(&(prev, prev_line)) = times.last()
+            && gap.is_none()
+            && (t - prev) * rate_hz as f64 > 1.5
+        {
+            gap = Some((prev, prev_line, t, line));
+        }
+        if times.len() == MAX_STEPS {
+            return Err(parse_error(
+                path,
+                line,
+                None,
+                None,
+                format!("more than {MAX_STEPS} data rows (the format's maximum length)"),
             ));
         }
         times.push((t, line));
@@ -418,18 +655,40 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
         }
     }
 
+    if let Some((prev, prev_line, t, line)) = gap {
+        return Err(parse_error(
+            path,
+            line,
+            Some(1),
+            Some("time_s"),
+            format!(
+                "time jumps from {prev} s (line {prev_line}) to {t} s, about {:.0} steps at \
+                 {rate_hz} Hz: rows are missing (lost frames); the monitor fills such gaps and \
+                 lists them under `monitor_gaps`",
+                (t - prev) * rate_hz as f64 - 1.0
+            ),
+        ));
+    }
+
     // Marks: from metadata and/or the phase column; they must agree.
     let mut marks = PhaseMarks {
         grasp_start: meta_step("grasp_start")?,
         lift_start: meta_step("lift_start")?,
         open_start: meta_step("open_start")?,
+        release: meta_step("release")?,
     };
     if !phases.is_empty() {
         let first = |p: Phase| phases.iter().position(|&q| q as u8 >= p as u8);
         let from_col = [
             ("grasp_start", first(Phase::Grasp), &mut marks.grasp_start),
             ("lift_start", first(Phase::Lift), &mut marks.lift_start),
-            ("open_start", first(Phase::Open), &mut marks.open_start),
+            // A recording may go from lift straight to release: only an `open` row marks open.
+            (
+                "open_start",
+                phases.iter().position(|&q| q == Phase::Open),
+                &mut marks.open_start,
+            ),
+            ("release", first(Phase::Release), &mut marks.release),
         ];
         for (k, col, m) in from_col {
             match (*m, col) {

@@ -144,6 +144,8 @@ pub enum Phase {
     Lift,
     /// From the third mark on (in eagle-shoal: `l2`, the end of the lift window).
     Open,
+    /// From the controller's release command on (the hand opens; recorded by the monitor).
+    Release,
 }
 
 impl Phase {
@@ -153,6 +155,7 @@ impl Phase {
             Phase::Grasp => "grasp",
             Phase::Lift => "lift",
             Phase::Open => "open",
+            Phase::Release => "release",
         }
     }
 }
@@ -165,8 +168,9 @@ impl FromStr for Phase {
             "grasp" => Ok(Phase::Grasp),
             "lift" => Ok(Phase::Lift),
             "open" => Ok(Phase::Open),
+            "release" => Ok(Phase::Release),
             other => Err(format!(
-                "phase must be pre, grasp, lift or open, not `{other}`"
+                "phase must be pre, grasp, lift, open or release, not `{other}`"
             )),
         }
     }
@@ -185,13 +189,18 @@ pub struct PhaseMarks {
     /// called "open start" in the issue. In eagle-shoal it is *not* the moment
     /// the hand opens (see docs/labels.md).
     pub open_start: Option<usize>,
+    /// The controller's release command (the hand opens); the monitor records it from the
+    /// samples stream's phase marks. Not in eagle-shoal.
+    pub release: Option<usize>,
 }
 
 impl PhaseMarks {
     /// Phase of step `t`.
     pub fn phase_at(&self, t: usize) -> Phase {
         let after = |m: Option<usize>| m.is_some_and(|m| t >= m);
-        if after(self.open_start) {
+        if after(self.release) {
+            Phase::Release
+        } else if after(self.open_start) {
             Phase::Open
         } else if after(self.lift_start) {
             Phase::Lift
@@ -331,6 +340,7 @@ impl Trial {
             ("grasp_start", self.marks.grasp_start),
             ("lift_start", self.marks.lift_start),
             ("open_start", self.marks.open_start),
+            ("release", self.marks.release),
             ("drop_step", self.drop_step),
             ("slip_onset_step", self.slip_onset_step),
         ];
@@ -345,14 +355,18 @@ impl Trial {
             self.marks.grasp_start,
             self.marks.lift_start,
             self.marks.open_start,
+            self.marks.release,
         ]
         .into_iter()
         .flatten()
         .collect();
         if ordered.windows(2).any(|w| w[0] > w[1]) {
             return Err(format!(
-                "phase marks out of order: grasp {:?}, lift {:?}, open {:?}",
-                self.marks.grasp_start, self.marks.lift_start, self.marks.open_start
+                "phase marks out of order: grasp {:?}, lift {:?}, open {:?}, release {:?}",
+                self.marks.grasp_start,
+                self.marks.lift_start,
+                self.marks.open_start,
+                self.marks.release
             ));
         }
         if let Some(l) = &self.step_labels

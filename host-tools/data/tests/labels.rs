@@ -31,6 +31,7 @@ fn failure_trial() -> Trial {
         grasp_start: Some(5),
         lift_start: Some(30),
         open_start: Some(80),
+        release: None,
     };
     t.outcome = Outcome::Failure;
     t
@@ -156,6 +157,7 @@ fn pressure_units_use_deviation_from_baseline() {
         grasp_start: Some(8),
         lift_start: Some(20),
         open_start: Some(100),
+        release: None,
     };
     t.outcome = Outcome::Failure;
     let l = label_trial(&t, &LabelConfig::default());

@@ -17,6 +17,7 @@ fn sample_trial() -> Trial {
         grasp_start: Some(1),
         lift_start: Some(2),
         open_start: Some(4),
+        release: None,
     };
     t.outcome = Outcome::Failure;
     t.drop_step = Some(4);
@@ -208,4 +209,133 @@ fn body_lines_are_file_lines_after_blank_lines() {
     // Blank lines in the body are skipped; errors still name the line of the file.
     let e = err("# slipguard-recording v1\n# rate_hz: 10\n# unit: mN\ntime_s,c0\n0,1\n\n\n0.1,x\n");
     assert_eq!(loc(&e), (8, Some(2)));
+}
+
+#[test]
+fn a_very_high_rate_recording_reads_back() {
+    // Six decimals would write 0.000000 twice at 10 MHz… the writer widens the time column.
+    for rate in [
+        16.7f32,
+        1000.0,
+        71_000.0,
+        slipguard_data::recording::MAX_RATE_HZ,
+    ] {
+        let t = Trial::new(
+            "fast",
+            Unit::MilliNewton,
+            rate,
+            vec![vec![1.0, 2.0, 3.0, 4.0]],
+        );
+        let back = parse_recording(&to_string(&t), Path::new("fast.csv"))
+            .unwrap_or_else(|e| panic!("{rate} Hz: {e}"));
+        assert_eq!(back.samples, t.samples, "{rate} Hz");
+        assert_eq!(back.rate_hz, rate);
+    }
+    // Rates the reader refuses, the writer refuses too.
+    let dir = std::env::temp_dir().join(format!("sg-rate-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for rate in [1e6f32, 1e-4] {
+        let t = Trial::new("x", Unit::MilliNewton, rate, vec![vec![1.0, 2.0]]);
+        let e = write_recording(&t, &dir.join("x.csv")).unwrap_err();
+        assert!(e.to_string().contains("outside"), "{e}");
+        let text = to_string(&t);
+        assert!(parse_recording(&text, Path::new("x.csv")).is_err());
+    }
+    let mut t = Trial::new("x", Unit::MilliNewton, 16.7, vec![vec![f32::NAN, 2.0]]);
+    assert!(write_recording(&t, &dir.join("x.csv")).is_err());
+    t.samples[0][0] = 1.0;
+    t.extra.insert("id".into(), "twice".into());
+    assert!(write_recording(&t, &dir.join("x.csv")).is_err());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn the_release_mark_round_trips_through_metadata_and_the_phase_column() {
+    let mut t = Trial::new("rel", Unit::MilliNewton, 40.0, vec![vec![0.0; 8]]);
+    t.marks = PhaseMarks {
+        grasp_start: Some(1),
+        lift_start: Some(3),
+        open_start: None,
+        release: Some(6),
+    };
+    let text = to_string(&t);
+    assert!(text.contains("# release: 6\n"), "{text}");
+    assert!(text.contains(",release\n"), "{text}");
+    let back = parse_recording(&text, Path::new("rel.csv")).unwrap();
+    assert_eq!(back.marks, t.marks);
+    // From the phase column alone (the monitor's file before its summary): no open mark.
+    let no_meta: String = text
+        .lines()
+        .filter(|l| {
+            !l.starts_with("# release") && !l.starts_with("# grasp") && !l.starts_with("# lift")
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let back = parse_recording(&no_meta, Path::new("rel.csv")).unwrap();
+    assert_eq!(back.marks, t.marks);
+    // Release before lift is refused with the marks named.
+    t.marks.release = Some(2);
+    assert!(t.validate().unwrap_err().contains("out of order"));
+    assert!(parse_recording(&to_string(&t), Path::new("rel.csv")).is_err());
+}
+
+#[test]
+fn a_gap_in_the_time_column_is_refused_with_its_line() {
+    // 40 steps at 10 Hz, step 3 lost: the mean step is within 5 % but one step is 2 periods.
+    let mut text = "# slipguard-recording v1\n# unit: mN\n# rate_hz: 10\ntime_s,c0\n".to_string();
+    for i in (0..41).filter(|&i| i != 3) {
+        text.push_str(&format!("{},1\n", i as f64 / 10.0));
+    }
+    let e = err(&text);
+    assert_eq!(loc(&e), (8, Some(1)), "{e}");
+    assert!(e.to_string().contains("rows are missing"), "{e}");
+}
+
+#[test]
+fn the_appender_writes_what_the_reader_reads() {
+    use slipguard_data::Phase;
+    use slipguard_data::recording::Appender;
+    let dir = std::env::temp_dir().join(format!("sg-append-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("a.csv");
+    let meta = Trial::new("a", Unit::MilliNewton, 16.7, vec![vec![], vec![]]);
+    let mut w = Appender::create(&p, &meta).unwrap();
+    let phases = [
+        Phase::Pre,
+        Phase::Grasp,
+        Phase::Grasp,
+        Phase::Lift,
+        Phase::Release,
+    ];
+    for (i, ph) in phases.iter().enumerate() {
+        w.push(&[i as f32, 0.5], *ph).unwrap();
+    }
+    assert!(w.push(&[1.0], Phase::Release).is_err(), "channel count");
+    assert!(w.push(&[1.0, 1.0], Phase::Lift).is_err(), "phase back");
+    w.flush().unwrap();
+    let t = parse_recording(&std::fs::read_to_string(&p).unwrap(), &p).unwrap();
+    assert_eq!(t.samples, vec![vec![0.0, 1.0, 2.0, 3.0, 4.0], vec![0.5; 5]]);
+    assert_eq!(
+        t.marks,
+        PhaseMarks {
+            grasp_start: Some(1),
+            lift_start: Some(3),
+            open_start: None,
+            release: Some(4)
+        }
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_file_over_the_size_limit_is_refused_before_reading() {
+    let dir = std::env::temp_dir().join(format!("sg-big-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("big.csv");
+    let f = std::fs::File::create(&p).unwrap();
+    // A sparse file: no disk space, but its length is over the limit.
+    f.set_len(slipguard_data::recording::MAX_BYTES + 1).unwrap();
+    let e = read_recording(&p, &LabelConfig::default()).unwrap_err();
+    assert!(e.to_string().contains("at most"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
 }

@@ -246,6 +246,7 @@ fn toy_trial() -> Trial {
         grasp_start: Some(5),
         lift_start: Some(10),
         open_start: Some(35),
+        release: None,
     };
     t.outcome = Outcome::Failure;
     t

@@ -564,6 +564,7 @@ fn sample(
         grasp_start: Some(clamp(step_of(p.t_grasp, rate))),
         lift_start: Some(clamp(step_of(p.t_lift, rate))),
         open_start: Some(clamp(step_of(p.t_open_mark, rate))),
+        release: None,
     };
     trial.outcome = outcome;
     trial.drop_step = truth.t_loss.map(|t| clamp(drop_step(p, truth, t, rate)));

@@ -290,6 +290,7 @@ pub fn simulate_trial(
             grasp_start: Some(st(p.t_attach)),
             lift_start: Some(st(p.t_lift)),
             open_start: Some(st(p.t_place)),
+            release: None,
         };
         tr.outcome = if t_detach.is_some() {
             Outcome::Failure

@@ -3,8 +3,10 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use slipguard::plot;
-use slipguard_data::labels::{LabelConfig, LabelStats, LabelStatus, detect_drop, label_annotated};
-use slipguard_data::{eagle, load_path, recording};
+use slipguard_data::labels::{
+    LabelConfig, LabelStats, LabelStatus, annotate, detect_drop, label_annotated,
+};
+use slipguard_data::{Outcome, eagle, load_path, recording};
 
 use super::progress::bar;
 
@@ -40,6 +42,11 @@ pub struct Args {
     /// Contact threshold (mN above baseline) for force channels.
     #[arg(long, default_value_t = 500.0)]
     pub contact_mn: f32,
+    /// Trials of unknown outcome (the monitor's recordings): failure if the force shows a
+    /// lasting drop after the lift, else success (printed per trial; check it against what you
+    /// saw, and fix a wrong one with `# outcome:` in the recording).
+    #[arg(long)]
+    pub outcome_from_drop: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -60,6 +67,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     })
     .with_context(|| format!("loading {}", path.display()))?;
     pb.finish_and_clear();
+    let mut trials = trials;
+    if a.outcome_from_drop {
+        for t in trials.iter_mut().filter(|t| t.outcome == Outcome::Unknown) {
+            // `load_path` annotated the trial: the drop step is set when the force drops.
+            t.outcome = match t.drop_step {
+                Some(d) => {
+                    println!("{}: outcome failure (lasting drop from step {d})", t.id);
+                    Outcome::Failure
+                }
+                None => {
+                    println!("{}: outcome success (no lasting drop)", t.id);
+                    Outcome::Success
+                }
+            };
+            annotate(t, &cfg);
+        }
+    }
     let labels: Vec<_> = trials.iter().map(|t| label_annotated(t, &cfg)).collect();
     let selected = |id: &str| a.trials.is_empty() || a.trials.iter().any(|t| t == id);
 

@@ -28,7 +28,8 @@ pub enum ProfileArg {
 pub enum Script {
     /// No commands: the firmware boots armed and flags from the first frame.
     None,
-    /// Grasp start / release at `--grasp-at` / `--release-at` (default: the trial's grasp mark).
+    /// Grasp start, lift and release at `--grasp-at`, `--lift-at`, `--release-at` (default: the
+    /// trial's grasp and release marks, and with --samples its lift mark).
     Marks,
     /// The QEMU comparison's scenario for Cheez_100_814_top_3 (ping, info, line noise, bad CRC,
     /// unknown type, threshold 0.6, grasp start at 52, release at 300, channel 14 open 150–169).
@@ -39,6 +40,8 @@ pub enum Script {
 pub struct Args {
     /// The trial: a recording (.csv, docs/data-format.md), an eagle-shoal trial folder, or a plain
     /// `tactile.csv` (header c0…c15, one row per step; marks from a sibling `<name>.meta.json`).
+    /// A folder of recordings (or the eagle-shoal root) replays each trial: `--out` and `--png`
+    /// are then folders (`<id>.bin`, `<id>.png`).
     pub trial: PathBuf,
     /// Model blob (default: models/hand-force/*.bin or models/suction/*.bin, first in name
     /// order, else the golden untrained blob).
@@ -59,6 +62,14 @@ pub struct Args {
     /// With `--script marks`: release before this frame.
     #[arg(long)]
     pub release_at: Option<u32>,
+    /// With `--script marks`: lift before this frame (default with --samples: the trial's lift
+    /// mark).
+    #[arg(long)]
+    pub lift_at: Option<u32>,
+    /// Send stream mode flags+samples before the first frame (and info), so the frames carry
+    /// the samples stream a `slipguard monitor --capture F --record R` records.
+    #[arg(long)]
+    pub samples: bool,
     /// Disconnect a channel: CHANNEL:FROM:TO (trial steps, TO exclusive); repeatable.
     #[arg(long, value_parser = parse_open_wire)]
     pub open_wire: Vec<OpenWire>,
@@ -129,6 +140,7 @@ pub fn load_trial(path: &Path, rate: f32) -> anyhow::Result<Trial> {
                 grasp_start: Some(l0 as usize),
                 lift_start: Some(l1 as usize),
                 open_start: Some(l2 as usize),
+                release: None,
             };
             t.outcome = if l3 == 1 {
                 Outcome::Success
@@ -143,8 +155,53 @@ pub fn load_trial(path: &Path, rate: f32) -> anyhow::Result<Trial> {
     Ok(t)
 }
 
+/// The trials of `path`: one, or every trial of a folder of recordings or dataset.
+fn load_trials(path: &Path, rate: f32) -> anyhow::Result<Vec<Trial>> {
+    if path.is_dir() {
+        let v = slipguard_data::load_path(path, &LabelConfig::default(), |_, _| {})
+            .with_context(|| format!("loading {}", path.display()))?;
+        return Ok(v);
+    }
+    Ok(vec![load_trial(path, rate)?])
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let trial = load_trial(&a.trial, a.rate)?;
+    let trials = load_trials(&a.trial, a.rate)?;
+    if trials.len() == 1 {
+        let (out, png) = (a.out.clone(), a.png.clone());
+        return run_one(&a, &trials[0], out.as_deref(), png.as_deref());
+    }
+    if a.port.is_some() {
+        bail!(
+            "{} holds {} trials: --port sends one; give one trial",
+            a.trial.display(),
+            trials.len()
+        );
+    }
+    for dir in [&a.out, &a.png].into_iter().flatten() {
+        anyhow::ensure!(
+            dir != Path::new("-"),
+            "{} holds {} trials: --out and --png are folders here",
+            a.trial.display(),
+            trials.len()
+        );
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    for t in &trials {
+        let out = a.out.as_ref().map(|d| d.join(format!("{}.bin", t.id)));
+        let png = a.png.as_ref().map(|d| d.join(format!("{}.png", t.id)));
+        run_one(&a, t, out.as_deref(), png.as_deref())?;
+    }
+    Ok(())
+}
+
+fn run_one(
+    a: &Args,
+    trial: &Trial,
+    out_path: Option<&Path>,
+    png: Option<&Path>,
+) -> anyhow::Result<()> {
+    let trial = trial.clone();
     let profile = match a.profile {
         ProfileArg::Auto => replay::profile_for(&trial),
         ProfileArg::Hand => Profile::HAND,
@@ -155,6 +212,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| replay::default_models(&profile).remove(0));
     let blob = replay::load_blob(&model)?;
+    // The model takes the profile's channels: a trial with more is refused (they would be
+    // dropped), one with fewer is padded with zero-force channels.
+    if trial.n_channels() > profile.channels {
+        bail!(
+            "{}: {} channels, the profile (the model's input) takes {}: record with the \
+             profile's channel count or pass --profile",
+            trial.id,
+            trial.n_channels(),
+            profile.channels
+        );
+    }
+    if trial.n_channels() < profile.channels {
+        eprintln!(
+            "replay: {}: {} channels, the profile takes {}: channels {}.. replay as 0",
+            trial.id,
+            trial.n_channels(),
+            profile.channels,
+            trial.n_channels()
+        );
+    }
     let rate_mhz = match replay::check_rate(&trial, blob.as_bytes()) {
         Ok(r) => r.unwrap_or(profile.default_rate_mhz()),
         Err(e) if a.any_rate => {
@@ -174,7 +251,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     command: Command::GraspStart,
                 });
             }
-            if let Some(r) = a.release_at {
+            // The lift only echoes a phase mark: by default sent when recording (--samples).
+            let lift_mark = trial.marks.lift_start.filter(|_| a.samples);
+            if let Some(l) = a.lift_at.or(lift_mark.map(|l| l as u32)) {
+                cmds.push(Scheduled {
+                    before_frame: l,
+                    command: Command::Lift,
+                });
+            }
+            if let Some(r) = a.release_at.or(trial.marks.release.map(|r| r as u32)) {
                 cmds.push(Scheduled {
                     before_frame: r,
                     command: Command::Release,
@@ -183,6 +268,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             cmds.sort_by_key(|c| c.before_frame);
             (replay::encode_script(&cmds), Vec::new())
         }
+    };
+    let script = if a.samples {
+        let mut v = replay::encode_script(&[
+            Scheduled {
+                before_frame: 0,
+                command: Command::Info,
+            },
+            Scheduled {
+                before_frame: 0,
+                command: Command::StreamMode(slipguard_core::protocol::StreamMode::FlagsAndSamples),
+            },
+        ]);
+        v.extend(script);
+        v
+    } else {
+        script
     };
     wires.extend(a.open_wire.iter().copied());
     let out = replay::replay(profile, blob.as_bytes(), &trial, &script, &wires);
@@ -206,14 +307,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         n_faults,
         out.wire.len()
     );
-    match a.out.as_deref() {
+    match out_path {
         Some(p) if p == Path::new("-") => std::io::stdout().write_all(&out.wire)?,
         Some(p) => {
             std::fs::write(p, &out.wire).with_context(|| format!("writing {}", p.display()))?
         }
         None => {}
     }
-    if let Some(png) = &a.png {
+    if let Some(png) = png {
         let flags = replay::flags_by_frame(&frames, rate_mhz, trial.n_steps());
         let title = format!(
             "{} ({}), model {}",
