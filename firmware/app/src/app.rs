@@ -60,37 +60,12 @@ impl SystemFault {
     pub fn wire(&self) -> (u8, u8, u32) {
         match *self {
             Self::BadModel(e) => {
-                let (detail, value) = blob_error_detail(e);
+                let (detail, value) = e.wire_detail();
                 (fault_code::BAD_MODEL, detail, value)
             }
             Self::RateMismatch(r) => (fault_code::RATE_MISMATCH, 0, r),
             Self::UnitMismatch => (fault_code::UNIT_MISMATCH, 0, 0),
         }
-    }
-}
-
-/// Stable detail code and value of a blob error (docs/protocol.md lists them).
-pub fn blob_error_detail(e: BlobError) -> (u8, u32) {
-    match e {
-        BlobError::Truncated { needed, .. } => (1, needed),
-        BlobError::BadMagic => (2, 0),
-        BlobError::UnsupportedVersion(v) => (3, v as u32),
-        BlobError::BadLength => (4, 0),
-        BlobError::BadCrc { computed, .. } => (5, computed),
-        BlobError::Misaligned => (6, 0),
-        BlobError::UnknownVariant(v) => (7, v as u32),
-        BlobError::UnknownField => (8, 0),
-        BlobError::OverBounds => (9, 0),
-        BlobError::InconsistentSizes => (10, 0),
-        BlobError::Stft(_) => (11, 0),
-        BlobError::BadSetting => (12, 0),
-        BlobError::UnknownTensor => (13, 0),
-        BlobError::DuplicateTensor(k) => (14, k as u32),
-        BlobError::MissingTensor(k) => (15, k as u32),
-        BlobError::TensorShape(k) => (16, k as u32),
-        BlobError::TensorOutOfBounds(k) => (17, k as u32),
-        BlobError::QuantParam(k) => (18, k as u32),
-        _ => (0xFF, 0),
     }
 }
 

@@ -27,7 +27,7 @@
 //! upload where it was (resend it, or resume at the offset the reply names); a new begin
 //! restarts from scratch.
 
-use crate::app::{App, SystemFault, blob_error_detail, check_model};
+use crate::app::{App, SystemFault, check_model};
 use crate::profile::Profile;
 use slipguard_core::blob::CRC32;
 use slipguard_core::protocol::{
@@ -347,7 +347,7 @@ impl Uploader {
         if let Err(e) = check_model(profile, blob) {
             return Err(match e {
                 SystemFault::BadModel(b) => {
-                    let (detail, value) = blob_error_detail(b);
+                    let (detail, value) = b.wire_detail();
                     (upload_code::BAD_BLOB, detail, value)
                 }
                 SystemFault::RateMismatch(r) => (upload_code::RATE_MISMATCH, 0, r),

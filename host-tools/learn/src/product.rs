@@ -249,6 +249,24 @@ pub struct CurvePoint {
     pub successes: usize,
 }
 
+impl CurvePoint {
+    /// The point of a decision (`threshold`, `raise_after`) from the grasps it flagged.
+    pub fn of(threshold: f64, raise_after: u8, grasps: &[ArmedGrasp]) -> Self {
+        let m = slipguard_data::armed::ArmedMetrics::of(grasps);
+        CurvePoint {
+            threshold,
+            raise_after,
+            detected_rate: m.detected_rate().unwrap_or(0.0),
+            false_alarm_grasp_rate: m.false_alarm_grasp_rate().unwrap_or(0.0),
+            lead_median_ms: m.lead_median_ms().unwrap_or(0.0),
+            detected_300ms: m.detected_with_lead(300.0),
+            failures: m.failures,
+            false_alarm_grasps: m.false_alarm_grasps,
+            successes: m.successes,
+        }
+    }
+}
+
 /// A scored run kept for decision sweeps: the run and its armed window.
 #[derive(Debug, Clone)]
 pub struct WindowedRun {
@@ -317,18 +335,7 @@ pub fn operating_curve(
                 slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
             h.decision.raise_after = r.max(1);
             let grasps: Vec<ArmedGrasp> = runs.iter().map(|w| w.grasp_with(&h)).collect();
-            let m = slipguard_data::armed::ArmedMetrics::of(&grasps);
-            out.push(CurvePoint {
-                threshold: th,
-                raise_after: r,
-                detected_rate: m.detected_rate().unwrap_or(0.0),
-                false_alarm_grasp_rate: m.false_alarm_grasp_rate().unwrap_or(0.0),
-                lead_median_ms: m.lead_median_ms().unwrap_or(0.0),
-                detected_300ms: m.detected_with_lead(300.0),
-                failures: m.failures,
-                false_alarm_grasps: m.false_alarm_grasps,
-                successes: m.successes,
-            });
+            out.push(CurvePoint::of(th, r, &grasps));
         }
     }
     out

@@ -558,12 +558,12 @@ fn product_eval(
                     w.grasp_with(&h)
                 })
                 .collect();
-            curve.push(point(th, r, &grasps));
+            curve.push(CurvePoint::of(th, r, &grasps));
         }
     }
     let shipped = g.members.first().map(|(ck, _)| {
         let c = &ck.model.config;
-        point(Q15(c.threshold_q15 as i16).to_f64(), c.raise_after, &hand)
+        CurvePoint::of(Q15(c.threshold_q15 as i16).to_f64(), c.raise_after, &hand)
     });
     Ok(Product {
         name: g.name.clone(),
@@ -575,21 +575,6 @@ fn product_eval(
         paper_success_ci: product::bootstrap_paper(&seqs, &preds, 5, |m| m.success_rate),
         paper_ahead_ci: product::bootstrap_paper(&seqs, &preds, 6, |m| m.ahead_drop_rate),
     })
-}
-
-fn point(threshold: f64, raise_after: u8, grasps: &[ArmedGrasp]) -> CurvePoint {
-    let m = slipguard_data::armed::ArmedMetrics::of(grasps);
-    CurvePoint {
-        threshold,
-        raise_after,
-        detected_rate: m.detected_rate().unwrap_or(0.0),
-        false_alarm_grasp_rate: m.false_alarm_grasp_rate().unwrap_or(0.0),
-        lead_median_ms: m.lead_median_ms().unwrap_or(0.0),
-        detected_300ms: m.detected_with_lead(300.0),
-        failures: m.failures,
-        false_alarm_grasps: m.false_alarm_grasps,
-        successes: m.successes,
-    }
 }
 
 /// Header of the armed-window table.
