@@ -295,7 +295,10 @@ fn field_loop_record_label_train_export_upload_flags_from_the_new_model() {
     )
     .unwrap()
     .remove(0);
-    let bytes = replay::trial_bytes(&trial, &Profile::HAND);
+    // The trial twice over, so that the hand is in contact again after the script's second
+    // grasp start (frame 390): channels out of contact do not run the model (`P_NONE`).
+    let bytes = replay::trial_bytes(&trial, &Profile::HAND).repeat(2);
+    let steps = 2 * trial.n_steps();
     let fw_trial = fw::Trial::new(&bytes, 16);
     let run = |model: &AlignedBlob, second: &AlignedBlob| {
         let mut slots = [
@@ -333,7 +336,7 @@ fn field_loop_record_label_train_export_upload_flags_from_the_new_model() {
         .iter()
         .filter(|f| matches!(f.msg, Message::Samples(_)))
         .count();
-    assert_eq!(samples, 400);
+    assert_eq!(samples, steps);
     // After the grasp start on the new model the flags are the new blob's (an app that ran it
     // from boot, after the same grasp start) and not the old one's.
     let p_after = |v: &[Frame]| -> Vec<[u16; 16]> {
@@ -349,7 +352,7 @@ fn field_loop_record_label_train_export_upload_flags_from_the_new_model() {
     let old_ref = run(&old, &old).0;
     assert_eq!(
         p_after(&field).len(),
-        400 - field_script::GRASP_AGAIN_AT as usize
+        steps - field_script::GRASP_AGAIN_AT as usize
     );
     assert_eq!(p_after(&field), p_after(&new_ref));
     assert_ne!(p_after(&field), p_after(&old_ref));
@@ -366,16 +369,26 @@ fn field_loop_record_label_train_export_upload_flags_from_the_new_model() {
         })
         .skip(field_script::GRASP_AGAIN_AT as usize)
         .collect();
+    let contact = slipguard_core::decision::ContactConfig::of(model.config());
     let mut states: Vec<ChannelState> = (0..16).map(|_| ChannelState::default()).collect();
-    let mut compared = 0;
+    let (mut compared, mut in_contact) = (0, 0);
     for (s, p) in values.iter().zip(p_after(&field)) {
         assert_eq!(s.fault, 0);
         for c in 0..16 {
-            let out = model.step(&mut states[c], s.value[c]);
-            assert_eq!(out.p_unstable_q15.max(0) as u16, p[c], "channel {c}");
+            let out = model.step_in_contact(&mut states[c], &contact, s.value[c]);
+            let want = out.step.map_or(slipguard_core::protocol::P_NONE, |o| {
+                o.p_unstable_q15.max(0) as u16
+            });
+            assert_eq!(want, p[c], "channel {c}");
             compared += 1;
+            in_contact += usize::from(out.step.is_some());
         }
     }
-    assert_eq!(compared, 16 * (400 - field_script::GRASP_AGAIN_AT as usize));
+    assert_eq!(
+        compared,
+        16 * (steps - field_script::GRASP_AGAIN_AT as usize)
+    );
+    // The comparison covers steps on which the new model ran.
+    assert!(in_contact > 100, "{in_contact} channel steps in contact");
     std::fs::remove_dir_all(&dir).ok();
 }
