@@ -11,6 +11,7 @@ use super::progress::bar;
 #[derive(Debug, Subcommand)]
 pub enum DatasetCommand {
     /// Summarise every trial: size, rate, unit, marks, outcome, drop step, contact channels.
+    #[command(after_help = "Examples:\n  slipguard dataset info\n  slipguard dataset info out/sim")]
     Info {
         /// Dataset root, trial folder, recording file or folder of recordings
         /// (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).

@@ -18,6 +18,7 @@ use slipguard_learn::evaluation::{
 use slipguard_learn::product::{self, OnsetRule};
 use slipguard_learn::train::{TrainConfig, init_model, split_by_trial, train};
 
+use super::check;
 use super::progress::bar;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -35,6 +36,7 @@ pub struct Args {
     /// Output folder (checkpoints, blobs, logs).
     #[arg(long)]
     pub out: PathBuf,
+    /// Sensor: force (real and simulated trials) or suction (simulated).
     #[arg(long, value_enum, default_value_t = Sensor::Force)]
     pub sensor: Sensor,
     /// Variants, comma separated: lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm, or all.
@@ -43,18 +45,22 @@ pub struct Args {
     /// Add the force difference d(t) = x(t) - x(t-1) (paper eq. 3) as an input.
     #[arg(long)]
     pub force_diff: bool,
-    /// LSTM hidden size (each LSTM of the dual variant).
-    #[arg(long, default_value_t = 128)]
+    /// LSTM hidden size (each LSTM of the dual variant), 1…128 (the firmware's bound).
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u16).range(1..=slipguard_core::MAX_HIDDEN as i64))]
     pub hidden: u16,
-    #[arg(long, default_value_t = 6e-4)]
+    /// Learning rate (Adam), > 0.
+    #[arg(long, default_value_t = 6e-4, value_parser = check::positive)]
     pub lr: f64,
-    #[arg(long, default_value_t = 60)]
+    /// Training epochs (≥ 1).
+    #[arg(long, default_value_t = 60, value_parser = check::usize_in!(1..))]
     pub epochs: usize,
     /// Early stopping: epochs without a better validation loss.
     #[arg(long, default_value_t = 10)]
     pub patience: usize,
-    #[arg(long, default_value_t = 32)]
+    /// Sequences per batch (≥ 1).
+    #[arg(long, default_value_t = 32, value_parser = check::usize_in!(1..))]
     pub batch: usize,
+    /// Seed of the weight initialisation and the batch order.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Loss weights of the stable and unstable class, e.g. 1,2.
@@ -64,21 +70,22 @@ pub struct Args {
     #[arg(long, default_value_t = 20)]
     pub label_lead: usize,
     /// Loss weight of the first --start-steps steps of every sequence (against start-up alarms).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = check::non_negative_f32)]
     pub start_weight: f32,
+    /// Steps at the start of every sequence that get --start-weight (0 = none).
     #[arg(long, default_value_t = 0)]
     pub start_steps: usize,
     /// Simulated trials for pre-training (0 = none); the model is then fine-tuned on real data.
     #[arg(long, default_value_t = 0)]
     pub sim_pretrain: usize,
-    /// Epochs of the pre-training.
-    #[arg(long, default_value_t = 15)]
+    /// Epochs of the pre-training (≥ 1).
+    #[arg(long, default_value_t = 15, value_parser = check::usize_in!(1..))]
     pub pretrain_epochs: usize,
     /// Simulated trials mixed into the (fine-)tuning set (suction: the whole training set).
     #[arg(long, default_value_t = 0)]
     pub sim_mix: usize,
-    /// Share of simulated trials drawn as drops.
-    #[arg(long, default_value_t = 0.3)]
+    /// Share of simulated trials drawn as drops (0…1).
+    #[arg(long, default_value_t = 0.3, value_parser = check::unit)]
     pub sim_failure_share: f64,
     /// Seed of the simulated training trials (pre-training uses it, mixing it + 1).
     #[arg(long, default_value_t = 11)]
@@ -97,49 +104,50 @@ pub struct Args {
     pub closed_loop_seed: u64,
     /// Model frame rate (Hz) of the force sensor: 16.7 (the paper's, real trials) or 40 (the
     /// hand profile's fast rate, for closed-loop use; simulated trials only).
-    #[arg(long, default_value_t = 16.7)]
+    #[arg(long, default_value_t = 16.7, value_parser = check::positive_f32)]
     pub rate_hz: f32,
     /// Closed-loop training labels: unstable when the object slips within this many seconds.
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.3, value_parser = check::non_negative)]
     pub closed_loop_lead: f64,
     /// Closed-loop training trials: the teacher also raises the grip on false alarms, at a rate
     /// drawn per trial from 0 to this (per s), so the model learns that the pad force rising
     /// under its controller's raises is not slip (0 = none).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = check::non_negative)]
     pub closed_loop_false_alarms: f64,
     /// Closed-loop training trials: put this trained model blob in the loop instead of the
     /// teacher for --closed-loop-policy-share of the trials, so the data holds the states its
     /// own flags lead to (labels still come from the physics).
     #[arg(long)]
     pub closed_loop_policy: Option<PathBuf>,
-    /// Share of the closed-loop training trials run with --closed-loop-policy.
-    #[arg(long, default_value_t = 0.5)]
+    /// Share of the closed-loop training trials run with --closed-loop-policy (0…1).
+    #[arg(long, default_value_t = 0.5, value_parser = check::unit)]
     pub closed_loop_policy_share: f64,
-    /// Cross-validation by trial with this many folds (0 = train one model on every trial).
+    /// Cross-validation by trial with this many folds (0 = train one model on every trial;
+    /// else 2 to the number of real trials).
     #[arg(long, default_value_t = 0)]
     pub cv: usize,
-    /// Share of the training trials held out (by trial) for early stopping.
-    #[arg(long, default_value_t = 0.2)]
+    /// Share of the training trials held out (by trial) for early stopping (0 ≤ x < 1).
+    #[arg(long, default_value_t = 0.2, value_parser = check::share_below_one)]
     pub val_share: f64,
-    /// Decision threshold on p(unstable).
-    #[arg(long, default_value_t = 0.5)]
+    /// Decision threshold on p(unstable), 0 < threshold < 1.
+    #[arg(long, default_value_t = 0.5, value_parser = check::open_unit)]
     pub threshold: f64,
-    /// Steps at or above the threshold before the flag rises.
-    #[arg(long, default_value_t = 1)]
+    /// Steps at or above the threshold before the flag rises (1…255).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub raise_after: u8,
-    /// Steps below the threshold before the flag clears.
-    #[arg(long, default_value_t = 1)]
+    /// Steps below the threshold before the flag clears (1…255).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub clear_after: u8,
     /// Pick threshold and hysteresis on the validation trials (overrides the three above).
     #[arg(long)]
     pub tune_decision: bool,
     /// With --tune-decision: smallest raise_after the sweep may pick (suppresses start-up blips).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub min_raise: u8,
     /// With --tune-decision on real trials: the largest share of the validation successes that
     /// may raise the hand flag in their armed window (lift to release); among the decisions
     /// that keep it, the one that detects most validation failures ≥ 300 ms ahead is picked.
-    #[arg(long, default_value_t = 0.125)]
+    #[arg(long, default_value_t = 0.125, value_parser = check::unit)]
     pub max_false_alarm_rate: f64,
     /// Train on sequences from the grasp start instead of from each channel's contact onset
     /// (the firmware's model state starts at the onset; this is for comparison only).
@@ -148,8 +156,8 @@ pub struct Args {
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
-    /// Short name written into the blob header (≤ 12 ASCII characters).
-    #[arg(long)]
+    /// Short name written into the blob header (1 to 12 printable ASCII characters).
+    #[arg(long, value_parser = check::blob_name)]
     pub blob_name: Option<String>,
 }
 
@@ -312,6 +320,17 @@ impl Run<'_> {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let variants = parse_variants(&a.variant)?;
+    let profile = match a.sensor {
+        Sensor::Force => slipguard_app::profile::Profile::HAND,
+        Sensor::Suction => slipguard_app::profile::Profile::SUCTION,
+    };
+    if a.sensor == Sensor::Force {
+        check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
+    }
+    anyhow::ensure!(
+        a.cv != 1,
+        "--cv 1: cross-validation needs 0 (off) or 2 to the number of real trials folds"
+    );
     let tc = TrainConfig {
         lr: a.lr,
         epochs: a.epochs,
@@ -470,6 +489,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             Some(m)
         };
         let folds: Vec<Vec<String>> = if a.cv > 0 {
+            let n_trials = real_trials.len();
+            anyhow::ensure!(
+                a.cv <= n_trials,
+                "--cv {}: at most the number of real trials ({n_trials}) folds",
+                a.cv
+            );
             cv_folds(&real, a.cv)
         } else {
             vec![Vec::new()]
