@@ -1054,3 +1054,67 @@ fn huge_safetensors_dimensions_exit_9() {
         "has a dimension of 4611686018427387904",
     );
 }
+
+#[test]
+fn arguments_out_of_range_are_refused_before_work() {
+    let blob = "../firmware/core/tests/fixtures/bench/model.bin";
+    let ck = fixture("torch_d.safetensors");
+    let ck = s(&ck);
+    for (args, needle) in [
+        (
+            vec![
+                "verify",
+                blob,
+                "--float",
+                ck,
+                "--data",
+                "x",
+                "--max-trials",
+                "0",
+            ],
+            "--max-trials",
+        ),
+        (
+            vec![
+                "verify",
+                blob,
+                "--float",
+                ck,
+                "--data",
+                "x",
+                "--min-flag-agreement",
+                "2",
+            ],
+            "0 ≤ x ≤ 1",
+        ),
+        (
+            vec![
+                "verify", blob, "--float", ck, "--data", "x", "--max-dp", "0",
+            ],
+            "0 < x ≤ 1",
+        ),
+        (vec!["export", ck, "--max-trials", "0"], "--max-trials"),
+        (vec!["upload", blob, "--port", "x", "--baud", "0"], "--baud"),
+    ] {
+        let out = run(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains(needle) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
+}
+
+#[test]
+fn every_subcommand_help_has_an_example() {
+    for sub in ["export", "inspect", "verify", "upload", "run"] {
+        let out = run(&[sub, "--help"]);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{sub}: {text}");
+        assert!(
+            text.contains("Example") && text.contains("slipguard-export "),
+            "{sub} --help has no example:\n{text}"
+        );
+    }
+}
