@@ -392,3 +392,40 @@ pub fn undocumented_options(help: &str) -> Vec<String> {
     }
     bad
 }
+
+#[test]
+fn train_out_writes_an_epoch_log_and_metrics_beside_the_checkpoint() {
+    let d = tmp_dir("train-log");
+    let out = slipguard()
+        .args([
+            "train",
+            "--variant",
+            "lstm",
+            "--hidden",
+            "4",
+            "--epochs",
+            "2",
+            "--batch",
+            "64",
+        ])
+        .arg("--out")
+        .arg(&d)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let log = std::fs::read_to_string(d.join("lstm.epochs.csv")).unwrap();
+    let rows: Vec<&str> = log.lines().collect();
+    assert_eq!(rows[0], "epoch,train_loss,val_loss,seconds");
+    assert_eq!(rows.len(), 3, "{log}");
+    assert!(rows[2].starts_with("2,"), "{log}");
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("lstm.metrics.json")).unwrap())
+            .unwrap();
+    assert_eq!(m["epochs_run"], 2);
+    assert!(m["best_val_loss"].as_f64().is_some_and(|v| v > 0.0), "{m}");
+    std::fs::remove_dir_all(&d).unwrap();
+}

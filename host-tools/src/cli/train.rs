@@ -16,7 +16,7 @@ use slipguard_learn::evaluation::{
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
 };
 use slipguard_learn::product::{self, OnsetRule};
-use slipguard_learn::train::{TrainConfig, init_model, split_by_trial, train};
+use slipguard_learn::train::{EpochLog, Progress, TrainConfig, init_model, split_by_trial, train};
 
 use super::check;
 use super::progress::bar;
@@ -217,15 +217,28 @@ impl Run<'_> {
         tr: &[&ChannelSequence],
         val: &[&ChannelSequence],
         tc: &TrainConfig,
-    ) -> anyhow::Result<(FloatModel, usize, f64)> {
+    ) -> anyhow::Result<(FloatModel, usize, f64, Vec<EpochLog>)> {
         let pb = bar(tc.epochs as u64, what);
+        pb.enable_steady_tick(std::time::Duration::from_millis(500));
         let t0 = Instant::now();
-        let out = train(init, tr, val, tc, |l| {
-            pb.set_position(l.epoch as u64);
-            pb.set_message(format!(
-                "{what} {:.4}/{:.4} {:.1}s",
-                l.train_loss, l.val_loss, l.seconds
-            ));
+        let mut last_val = String::new();
+        let out = train(init, tr, val, tc, |p| match p {
+            Progress::Batch {
+                epoch,
+                batch,
+                batches,
+                train_loss,
+            } => pb.set_message(format!(
+                "{what} epoch {epoch} batch {batch}/{batches} train loss {train_loss:.4}{last_val}"
+            )),
+            Progress::Epoch(l) => {
+                pb.set_position(l.epoch as u64);
+                last_val = format!(
+                    " (epoch {}: val loss {:.4}, {:.1} s)",
+                    l.epoch, l.val_loss, l.seconds
+                );
+                pb.set_message(format!("{what} train loss {:.4}{last_val}", l.train_loss));
+            }
         })?;
         pb.finish_and_clear();
         let n = out.history.len();
@@ -241,7 +254,7 @@ impl Run<'_> {
                 .get(out.best_epoch.saturating_sub(1))
                 .map_or(f64::NAN, |l| l.val_loss)
         );
-        Ok((out.model, out.best_epoch, spe))
+        Ok((out.model, out.best_epoch, spe, out.history))
     }
 
     fn decision(
@@ -316,6 +329,41 @@ impl Run<'_> {
         set_decision(&mut model.config, d);
         Ok(())
     }
+}
+
+/// Beside a checkpoint: `<stem>.epochs.csv` (epoch, train and validation loss, seconds) and
+/// `<stem>.metrics.json` (best epoch and its losses, epochs run, total seconds, sequences).
+fn write_train_log(
+    checkpoint: &Path,
+    history: &[EpochLog],
+    best_epoch: usize,
+    n_train: usize,
+    n_val: usize,
+) -> anyhow::Result<()> {
+    let mut csv = String::from("epoch,train_loss,val_loss,seconds\n");
+    for l in history {
+        csv += &format!(
+            "{},{:.6},{:.6},{:.3}\n",
+            l.epoch, l.train_loss, l.val_loss, l.seconds
+        );
+    }
+    let log = checkpoint.with_extension("epochs.csv");
+    std::fs::write(&log, csv).with_context(|| format!("writing {}", log.display()))?;
+    let best = history.get(best_epoch.saturating_sub(1));
+    let finite = |v: Option<f64>| v.filter(|v| v.is_finite());
+    let metrics = serde_json::json!({
+        "best_epoch": best_epoch,
+        "best_train_loss": finite(best.map(|l| l.train_loss)),
+        "best_val_loss": finite(best.map(|l| l.val_loss)),
+        "epochs_run": history.len(),
+        "seconds": history.iter().map(|l| l.seconds).sum::<f64>(),
+        "train_sequences": n_train,
+        "val_sequences": n_val,
+    });
+    let json = checkpoint.with_extension("metrics.json");
+    std::fs::write(&json, serde_json::to_string_pretty(&metrics)? + "\n")
+        .with_context(|| format!("writing {}", json.display()))?;
+    Ok(())
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -484,7 +532,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 epochs: a.pretrain_epochs,
                 ..run.tc.clone()
             };
-            let (m, _, spe) = run.fit("pretrain", &init, &tr, &val, &tc)?;
+            let (m, _, spe, _) = run.fit("pretrain", &init, &tr, &val, &tc)?;
             timing.push(format!("pretrain {spe:.2} s/epoch ({} seqs)", tr.len()));
             Some(m)
         };
@@ -527,7 +575,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             } else {
                 "train".to_string()
             };
-            let (mut model, best_epoch, spe) = run.fit(&what, &init, &tr, &val, &run.tc)?;
+            let (mut model, best_epoch, spe, history) =
+                run.fit(&what, &init, &tr, &val, &run.tc)?;
             timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
             let val_seqs: Vec<&Sequence> = real
                 .iter()
@@ -561,6 +610,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             if a.cv > 0 {
                 let p = a.out.join(&name).join(format!("fold{k}.safetensors"));
                 checkpoint::write(&p, &ck)?;
+                write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
                 let test: Vec<&Sequence> = real
                     .iter()
                     .filter(|s| held.contains(&s.cs.trial_id))
@@ -600,6 +650,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             } else {
                 let p = a.out.join(format!("{name}.safetensors"));
                 checkpoint::write(&p, &ck)?;
+                write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
                 let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
                 let blob = quantize_model(&ck.model, &calib)?;
                 let bp = a.out.join(format!("{name}.bin"));
