@@ -98,11 +98,11 @@ fn share(s: &str) -> Result<f64, String> {
     }
 }
 
-/// clap parser: a bound on |Δp|, 0 < x ≤ 1.
+/// clap parser: a bound on |Δp|, 0 ≤ x ≤ 1 (0: any difference fails).
 fn dp_bound(s: &str) -> Result<f32, String> {
     match s.trim().parse::<f32>() {
-        Ok(v) if v > 0.0 && v <= 1.0 => Ok(v),
-        Ok(v) => Err(format!("{v} is not in the allowed range 0 < x ≤ 1")),
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} is not in the allowed range 0 ≤ x ≤ 1")),
         Err(_) => Err(format!("`{s}` is not a number")),
     }
 }
@@ -304,7 +304,7 @@ struct VerifyArgs {
     /// the threshold over the hysteresis window); 0 ≤ x ≤ 1.
     #[arg(long, default_value_t = calib::MIN_DECISIVE_AGREEMENT, value_parser = share)]
     min_flag_agreement: f64,
-    /// Fail (exit 13) above this max |Δp| over every step of every whole recording; 0 < x ≤ 1.
+    /// Fail (exit 13) above this max |Δp| over every step of every whole recording; 0 ≤ x ≤ 1.
     #[arg(long, default_value_t = calib::MAX_DP, value_parser = dp_bound)]
     max_dp: f32,
     /// Write the agreement as JSON.

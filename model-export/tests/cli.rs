@@ -1089,9 +1089,9 @@ fn arguments_out_of_range_are_refused_before_work() {
         ),
         (
             vec![
-                "verify", blob, "--float", ck, "--data", "x", "--max-dp", "0",
+                "verify", blob, "--float", ck, "--data", "x", "--max-dp", "2",
             ],
-            "0 < x ≤ 1",
+            "0 ≤ x ≤ 1",
         ),
         (vec!["export", ck, "--max-trials", "0"], "--max-trials"),
         (vec!["upload", blob, "--port", "x", "--baud", "0"], "--baud"),
