@@ -288,7 +288,7 @@ pub fn plot_fig8(
             Some((i as f32, Q15(p as i16).to_f64() as f32))
         })
         .collect();
-    let root = BitMapBackend::new(path, (1100, 420)).into_drawing_area();
+    let root = BitMapBackend::new(crate::plot::writable(path)?, (1100, 420)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(&e))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 16))

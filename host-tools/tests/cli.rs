@@ -437,3 +437,36 @@ fn the_help_check_finds_an_undocumented_option() {
     let help = "Options:\n      --lr <LR>\n      --seed <SEED>  Seed of the batch order\n  -h, --help  Print help\n";
     assert_eq!(undocumented_options(help), vec!["--lr <LR>".to_string()]);
 }
+
+#[test]
+fn errors_name_the_path_and_the_cause_once_without_debug_output() {
+    let t = real_trial();
+    for (args, path) in [
+        (
+            vec!["dataset", "info", "/nonexistent/data"],
+            "/nonexistent/data",
+        ),
+        (
+            vec![
+                "replay",
+                t.to_str().unwrap(),
+                "--png",
+                "/nonexistent/fig.png",
+            ],
+            "/nonexistent/fig.png",
+        ),
+        (
+            vec!["replay", "/nonexistent/trial.csv"],
+            "/nonexistent/trial.csv",
+        ),
+    ] {
+        let all = refused(&args, &[path]);
+        let errors: Vec<&str> = all.lines().filter(|l| l.starts_with("error")).collect();
+        assert_eq!(errors.len(), 1, "{args:?}: {all}");
+        let err = errors[0];
+        assert_eq!(err.matches(path).count(), 1, "{args:?}: {err}");
+        for debug in ["Os {", "IoError", "Some(", "kind:"] {
+            assert!(!err.contains(debug), "{args:?}: debug output in: {err}");
+        }
+    }
+}

@@ -256,7 +256,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             }
         );
         if let Some(dir) = &a.out {
-            std::fs::create_dir_all(dir)?;
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
             let png = dir.join(format!("closed-loop-{}.png", sit.name()));
             plot(&scenarios, &results, &min, sit, &png)?;
         }
@@ -288,7 +288,11 @@ fn plot(
         RGBColor(255, 127, 14),
     ];
     let rows = scenarios.len().min(3);
-    let root = BitMapBackend::new(path, (1100, 300 * rows.max(1) as u32)).into_drawing_area();
+    let root = BitMapBackend::new(
+        slipguard::plot::writable(path)?,
+        (1100, 300 * rows.max(1) as u32),
+    )
+    .into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
     let cells = root.split_evenly((rows.max(1), 1));
     for (k, area) in cells.iter().enumerate().take(rows) {
