@@ -470,3 +470,49 @@ fn errors_name_the_path_and_the_cause_once_without_debug_output() {
         }
     }
 }
+
+#[test]
+fn monitor_views_lines_and_none_do_what_the_help_says() {
+    let d = tmp_dir("monitor-view");
+    let cap = d.join("frames.bin");
+    let out = slipguard()
+        .arg("replay")
+        .arg(real_trial())
+        .args(["--script", "cheez", "--out"])
+        .arg(&cap)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let view = |v: &str| {
+        let o = slipguard()
+            .args(["monitor", "--view", v, "--capture"])
+            .arg(&cap)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).to_string()
+    };
+    let none = view("none");
+    assert_eq!(none.lines().count(), 1, "{none}");
+    assert!(
+        none.starts_with("summary: ") && none.contains("flags="),
+        "{none}"
+    );
+    let lines = view("lines");
+    assert!(
+        lines.contains("flags t=") && lines.contains("reply to seq"),
+        "{lines}"
+    );
+    assert!(lines.contains("info firmware"), "{lines}");
+    for debug in ["{", "}", "Some(", "Info("] {
+        assert!(
+            !lines.contains(debug),
+            "debug output `{debug}` in:\n{lines}"
+        );
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+}
