@@ -452,6 +452,33 @@ fn print_agreement(ag: &calib::Agreement) {
     }
 }
 
+/// A checkpoint of our trainer lists the validation trials of its training set (`val_trials`) and,
+/// for a cross-validation fold, its held-out trials (`heldout_trials`): data that holds one of its
+/// validation trials and none held out is the data it was trained on.
+fn in_sample_note(float: &std::path::Path, data: &calib::DataSet) -> Option<String> {
+    let bytes = std::fs::read(float).ok()?;
+    let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
+    let meta = meta.metadata().as_ref()?;
+    let list = |k: &str| -> Vec<&str> {
+        meta.get(k)
+            .map(|v| v.split(',').filter(|s| !s.is_empty()).collect())
+            .unwrap_or_default()
+    };
+    let (val, held) = (list("val_trials"), list("heldout_trials"));
+    let has = |ids: &[&str]| {
+        data.sequences
+            .iter()
+            .any(|s| ids.contains(&s.trial_id.as_str()))
+    };
+    (has(&val) && !has(&held)).then(|| {
+        format!(
+            "{} was trained on these trials (in-sample): the agreement is measured on its own \
+             training data",
+            float.display()
+        )
+    })
+}
+
 fn run_verify(a: VerifyArgs) -> Result<()> {
     let bytes = pipeline::read(&a.blob)?;
     let aligned = AlignedBlob::new(&bytes);
@@ -464,6 +491,9 @@ fn run_verify(a: VerifyArgs) -> Result<()> {
         eprintln!("note: {n}");
     }
     let data = calib::load_data(&a.data, &blob.config, a.max_trials, a.quiet)?;
+    if let Some(note) = in_sample_note(&a.float, &data) {
+        eprintln!("note: {note}");
+    }
     let ag = calib::agreement(&float, &bytes, &data, a.quiet)?;
     print_agreement(&ag);
     if let Some(j) = &a.json {

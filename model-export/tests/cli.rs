@@ -1118,3 +1118,36 @@ fn every_subcommand_help_has_an_example() {
         );
     }
 }
+
+#[test]
+fn verify_on_the_training_trials_says_in_sample() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let blob = root.join("models/hand-force/hand-force.bin");
+    let ck = root.join("models/hand-force/hand-force.safetensors");
+    let data = data_dir();
+    let out = run(&[
+        "verify",
+        s(&blob),
+        "--float",
+        s(&ck),
+        "--data",
+        s(&data),
+        "-q",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("in-sample"), "{err}");
+    // A fixture checkpoint without trainer metadata: no note.
+    let out = run(&[
+        "verify",
+        "../firmware/core/tests/fixtures/bench/model.bin",
+        "--float",
+        s(&fixture("torch_c.safetensors")),
+        "--data",
+        s(&data),
+        "--max-trials",
+        "2",
+        "-q",
+    ]);
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("in-sample"));
+}
