@@ -19,7 +19,62 @@ fn main() {
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", memory_x.display());
     println!("cargo:rerun-if-changed=build.rs");
+    check_model_profile();
     for arg in ["--nmagic", "-Tlink.x", "-Tdefmt.x", "-Tmodel.x"] {
         println!("cargo:rustc-link-arg-bins={arg}");
+    }
+}
+
+/// The embedded blob's rate and input unit (from `slipguard-support`'s build script) against this
+/// build's sensor profile: a blob the firmware would answer with fault frames only stops the build,
+/// unless `SLIPGUARD_ALLOW_BAD_MODEL=1` (then a cargo warning).
+fn check_model_profile() {
+    use slipguard_app::profile::Profile;
+    println!("cargo:rerun-if-env-changed=SLIPGUARD_ALLOW_BAD_MODEL");
+    let profile = if env::var_os("CARGO_FEATURE_PROFILE_SUCTION").is_some() {
+        Profile::SUCTION
+    } else {
+        Profile::HAND
+    };
+    // Absent when the blob did not parse (already refused or allowed by the support crate).
+    let (Some(rate), Some(unit)) = (
+        env::var("DEP_SLIPGUARD_MODEL_RATE_MHZ").ok(),
+        env::var("DEP_SLIPGUARD_MODEL_UNIT").ok(),
+    ) else {
+        return;
+    };
+    let rate_mhz: u32 = rate.parse().unwrap_or(0);
+    let why = if !profile.check_rate(rate_mhz) {
+        let rates: Vec<String> = profile
+            .rates_mhz
+            .iter()
+            .map(|r| format!("{}", *r as f64 / 1000.0))
+            .collect();
+        Some(format!(
+            "the model runs at {} Hz, the {} profile at {} Hz",
+            rate_mhz as f64 / 1000.0,
+            profile.name,
+            rates.join(" or ")
+        ))
+    } else if unit != profile.unit.to_string() {
+        Some(format!(
+            "the model takes {unit} input, the {} profile delivers {}",
+            profile.name, profile.unit
+        ))
+    } else {
+        None
+    };
+    let Some(why) = why else { return };
+    if env::var_os("SLIPGUARD_ALLOW_BAD_MODEL").is_some_and(|v| v == "1") {
+        println!(
+            "cargo:warning=model blob: {why}; embedded anyway (SLIPGUARD_ALLOW_BAD_MODEL=1): the \
+             firmware will send fault frames only"
+        );
+    } else {
+        eprintln!(
+            "error: model blob (SLIPGUARD_MODEL): {why}. Build with the matching profile feature \
+             or another blob (or SLIPGUARD_ALLOW_BAD_MODEL=1 to embed it anyway)"
+        );
+        std::process::exit(1);
     }
 }

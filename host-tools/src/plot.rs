@@ -20,6 +20,14 @@ const PALETTE: [RGBColor; 8] = [
     RGBColor(23, 190, 207),
 ];
 
+/// Checks that a PNG can be written at `path` (its folder exists, it may be created) before
+/// anything is drawn, so that the error names the path and the cause once, instead of the
+/// drawing backend's nested error.
+pub fn writable(path: &Path) -> Result<&Path> {
+    std::fs::File::create(path).map_err(|e| DataError::io(path, e))?;
+    Ok(path)
+}
+
 fn perr(path: &Path, e: impl std::fmt::Display) -> DataError {
     DataError::Plot {
         path: path.to_path_buf(),
@@ -131,7 +139,7 @@ fn draw_trial<DB: DrawingBackend>(
 
 /// One trial with its marks and labels.
 pub fn plot_trial(t: &Trial, labels: Option<&TrialLabels>, path: &Path) -> Result<()> {
-    let root = BitMapBackend::new(path, (1100, 480)).into_drawing_area();
+    let root = BitMapBackend::new(writable(path)?, (1100, 480)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(path, e))?;
     let title = format!("{} ({}, {} Hz)", t.id, t.outcome, t.rate_hz);
     draw_trial(&root, t, labels, &title, None).map_err(|e| perr(path, e))?;
@@ -141,7 +149,7 @@ pub fn plot_trial(t: &Trial, labels: Option<&TrialLabels>, path: &Path) -> Resul
 /// Rows of (left, right) trials side by side, e.g. real vs simulated.
 pub fn plot_pairs(rows: &[(&Trial, &Trial)], path: &Path, xmax: Option<usize>) -> Result<()> {
     let h = 330 * rows.len() as u32;
-    let root = BitMapBackend::new(path, (1400, h.max(330))).into_drawing_area();
+    let root = BitMapBackend::new(writable(path)?, (1400, h.max(330))).into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(path, e))?;
     let cells = root.split_evenly((rows.len(), 2));
     for (i, (a, b)) in rows.iter().enumerate() {
@@ -165,7 +173,7 @@ pub fn plot_spectra(
     series: &[(String, Vec<f64>, RGBColor)],
     path: &Path,
 ) -> Result<()> {
-    let root = BitMapBackend::new(path, (900, 480)).into_drawing_area();
+    let root = BitMapBackend::new(writable(path)?, (900, 480)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(path, e))?;
     let ymax = series
         .iter()
@@ -208,8 +216,8 @@ pub fn plot_spectra(
 
 /// All channels of trials stacked vertically (for suction: 71 Hz over 17.75 Hz).
 pub fn plot_stack(trials: &[&Trial], path: &Path) -> Result<()> {
-    let root =
-        BitMapBackend::new(path, (1100, 330 * trials.len().max(1) as u32)).into_drawing_area();
+    let root = BitMapBackend::new(writable(path)?, (1100, 330 * trials.len().max(1) as u32))
+        .into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(path, e))?;
     let cells = root.split_evenly((trials.len().max(1), 1));
     for (t, area) in trials.iter().zip(&cells) {
@@ -335,7 +343,7 @@ fn draw_prediction(
     if let Some(d) = path.parent() {
         std::fs::create_dir_all(d)?;
     }
-    let root = BitMapBackend::new(path, (900, 420)).into_drawing_area();
+    let root = BitMapBackend::new(writable(path)?, (900, 420)).into_drawing_area();
     root.fill(&WHITE)?;
     let n = s.cs.samples.len();
     let max = s.cs.samples.iter().copied().fold(f32::MIN, f32::max);
@@ -406,7 +414,7 @@ fn draw_operating_curve(
     if let Some(d) = path.parent() {
         std::fs::create_dir_all(d)?;
     }
-    let root = BitMapBackend::new(path, (640, 560)).into_drawing_area();
+    let root = BitMapBackend::new(writable(path)?, (640, 560)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 15))

@@ -82,6 +82,40 @@ pub fn trial_bytes(trial: &Trial, profile: &Profile) -> Vec<u8> {
     out
 }
 
+/// Checks a blob as the firmware does at boot ([`slipguard_app::app::check_model`]: it parses
+/// within the build's bounds, its rate is one the profile runs, its input unit the profile's);
+/// returns its settings or, in words, why the firmware would only send fault frames.
+pub fn check_blob(
+    profile: &Profile,
+    blob: &[u8],
+) -> std::result::Result<slipguard_core::blob::ModelConfig, String> {
+    use slipguard_app::app::{SystemFault, check_model};
+    match check_model(profile, blob) {
+        Ok(m) => Ok(*m.config()),
+        Err(SystemFault::BadModel(e)) => Err(format!("not a valid model blob: {e}")),
+        Err(SystemFault::RateMismatch(r)) => Err(format!(
+            "the model runs at {} Hz, the {} profile at {} Hz",
+            r as f64 / 1000.0,
+            profile.name,
+            profile
+                .rates_mhz
+                .iter()
+                .map(|r| format!("{}", *r as f64 / 1000.0))
+                .collect::<Vec<_>>()
+                .join(" or ")
+        )),
+        Err(SystemFault::UnitMismatch) => {
+            let unit = Model::from_bytes(blob).map(|m| m.config().input_unit.to_string());
+            Err(format!(
+                "the model takes {} input, the {} profile delivers {}",
+                unit.unwrap_or_default(),
+                profile.name,
+                profile.unit
+            ))
+        }
+    }
+}
+
 /// Checks that a blob's frame rate is the trial's (within 1 %); returns the model rate in mHz.
 pub fn check_rate(trial: &Trial, blob: &[u8]) -> std::result::Result<Option<u32>, String> {
     let Ok(m) = Model::from_bytes(blob) else {
@@ -254,7 +288,7 @@ pub fn plot_fig8(
             Some((i as f32, Q15(p as i16).to_f64() as f32))
         })
         .collect();
-    let root = BitMapBackend::new(path, (1100, 420)).into_drawing_area();
+    let root = BitMapBackend::new(crate::plot::writable(path)?, (1100, 420)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(&e))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 16))

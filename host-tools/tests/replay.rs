@@ -99,19 +99,27 @@ fn marks_script_open_wire_and_bad_blob() {
     // Disarmed after the release: no flag.
     assert!(flags[210..].iter().all(|f| f.unstable == 0));
 
-    // A corrupted blob: fault frames only.
+    // A corrupted blob: refused before the replay; with --allow-bad-model, fault frames only.
     let mut b = std::fs::read(golden_model_path()).unwrap();
     b[5000] ^= 0x10;
     let bad = tmp("bad.bin");
     std::fs::write(&bad, &b).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_slipguard"))
-        .arg("replay")
-        .arg(&trial)
-        .arg("--model")
-        .arg(&bad)
-        .args(["--out", "-"])
-        .output()
-        .unwrap();
+    let replay_bad = |allow: bool| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_slipguard"));
+        c.arg("replay").arg(&trial).arg("--model").arg(&bad);
+        if allow {
+            c.arg("--allow-bad-model");
+        }
+        c.args(["--out", "-"]).output().unwrap()
+    };
+    let o = replay_bad(false);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && o.stdout.is_empty(), "{err}");
+    assert!(
+        err.contains("CRC") && err.contains("--allow-bad-model"),
+        "{err}"
+    );
+    let o = replay_bad(true);
     assert!(o.status.success());
     let frames = decode_stream(&o.stdout);
     assert!(!frames.is_empty());

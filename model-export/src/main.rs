@@ -48,6 +48,9 @@ enum Cmd {
     #[command(after_help = EXAMPLES)]
     Export(ExportArgs),
     /// Print a blob's header, tensor sizes, MACs per step, flash and RAM needed, and CRC.
+    #[command(
+        after_help = "Examples:\n  slipguard-export inspect model.bin\n  slipguard-export inspect model.bin --json > model.json"
+    )]
     Inspect {
         /// The blob.
         blob: PathBuf,
@@ -62,6 +65,7 @@ enum Cmd {
     /// board has checked it (docs/protocol.md, "Model upload"). Exit codes: 3 port or no reply,
     /// 12 invalid blob, 13 not active after commit, 14 refused by the board (the message says
     /// what to fix).
+    #[command(after_help = "Example:\n  slipguard-export upload model.bin --port /dev/ttyUSB0")]
     Upload(UploadArgs),
     /// Run a blob over a raw trace (or a feature file) and print p(unstable) and the flag per
     /// step, as the device computes them; `--check-features` compares a feature file with the
@@ -77,12 +81,30 @@ struct UploadArgs {
     /// Serial port of the board's UART (e.g. /dev/ttyUSB0, COM3).
     #[arg(long)]
     port: String,
-    /// Baud rate.
-    #[arg(long, default_value_t = 921_600)]
+    /// Baud rate (≥ 1).
+    #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..))]
     baud: u32,
     /// Send release first (the board refuses an upload while flagging is armed).
     #[arg(long)]
     release: bool,
+}
+
+/// clap parser: a share, 0 ≤ x ≤ 1.
+fn share(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} is not in the allowed range 0 ≤ x ≤ 1")),
+        Err(_) => Err(format!("`{s}` is not a number")),
+    }
+}
+
+/// clap parser: a bound on |Δp|, 0 ≤ x ≤ 1 (0: any difference fails).
+fn dp_bound(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f32>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} is not in the allowed range 0 ≤ x ≤ 1")),
+        Err(_) => Err(format!("`{s}` is not a number")),
+    }
 }
 
 const RUN_EXAMPLES: &str = "\
@@ -236,8 +258,8 @@ struct ExportArgs {
     /// Validation data for the quantized-vs-float agreement (default: the calibration data).
     #[arg(long)]
     validation: Option<PathBuf>,
-    /// Use at most this many trials of each data set.
-    #[arg(long)]
+    /// Use at most this many trials of each data set (≥ 1).
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     max_trials: Option<usize>,
     /// Fit the normalisation on --data when the model carries none (must match training).
     #[arg(long)]
@@ -275,15 +297,15 @@ struct VerifyArgs {
     data: PathBuf,
     #[command(flatten)]
     m: ModelArgs,
-    /// Use at most this many trials.
-    #[arg(long)]
+    /// Use at most this many trials (≥ 1).
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     max_trials: Option<usize>,
     /// Fail (exit 13) below this flag agreement on decisive steps (float p at least 0.02 from
-    /// the threshold over the hysteresis window).
-    #[arg(long, default_value_t = calib::MIN_DECISIVE_AGREEMENT)]
+    /// the threshold over the hysteresis window); 0 ≤ x ≤ 1.
+    #[arg(long, default_value_t = calib::MIN_DECISIVE_AGREEMENT, value_parser = share)]
     min_flag_agreement: f64,
-    /// Fail (exit 13) above this max |Δp| over every step of every whole recording.
-    #[arg(long, default_value_t = calib::MAX_DP)]
+    /// Fail (exit 13) above this max |Δp| over every step of every whole recording; 0 ≤ x ≤ 1.
+    #[arg(long, default_value_t = calib::MAX_DP, value_parser = dp_bound)]
     max_dp: f32,
     /// Write the agreement as JSON.
     #[arg(long)]
@@ -430,6 +452,33 @@ fn print_agreement(ag: &calib::Agreement) {
     }
 }
 
+/// A checkpoint of our trainer lists the validation trials of its training set (`val_trials`) and,
+/// for a cross-validation fold, its held-out trials (`heldout_trials`): data that holds one of its
+/// validation trials and none held out is the data it was trained on.
+fn in_sample_note(float: &std::path::Path, data: &calib::DataSet) -> Option<String> {
+    let bytes = std::fs::read(float).ok()?;
+    let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
+    let meta = meta.metadata().as_ref()?;
+    let list = |k: &str| -> Vec<&str> {
+        meta.get(k)
+            .map(|v| v.split(',').filter(|s| !s.is_empty()).collect())
+            .unwrap_or_default()
+    };
+    let (val, held) = (list("val_trials"), list("heldout_trials"));
+    let has = |ids: &[&str]| {
+        data.sequences
+            .iter()
+            .any(|s| ids.contains(&s.trial_id.as_str()))
+    };
+    (has(&val) && !has(&held)).then(|| {
+        format!(
+            "{} was trained on these trials (in-sample): the agreement is measured on its own \
+             training data",
+            float.display()
+        )
+    })
+}
+
 fn run_verify(a: VerifyArgs) -> Result<()> {
     let bytes = pipeline::read(&a.blob)?;
     let aligned = AlignedBlob::new(&bytes);
@@ -442,6 +491,9 @@ fn run_verify(a: VerifyArgs) -> Result<()> {
         eprintln!("note: {n}");
     }
     let data = calib::load_data(&a.data, &blob.config, a.max_trials, a.quiet)?;
+    if let Some(note) = in_sample_note(&a.float, &data) {
+        eprintln!("note: {note}");
+    }
     let ag = calib::agreement(&float, &bytes, &data, a.quiet)?;
     print_agreement(&ag);
     if let Some(j) = &a.json {

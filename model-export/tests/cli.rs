@@ -1054,3 +1054,100 @@ fn huge_safetensors_dimensions_exit_9() {
         "has a dimension of 4611686018427387904",
     );
 }
+
+#[test]
+fn arguments_out_of_range_are_refused_before_work() {
+    let blob = "../firmware/core/tests/fixtures/bench/model.bin";
+    let ck = fixture("torch_d.safetensors");
+    let ck = s(&ck);
+    for (args, needle) in [
+        (
+            vec![
+                "verify",
+                blob,
+                "--float",
+                ck,
+                "--data",
+                "x",
+                "--max-trials",
+                "0",
+            ],
+            "--max-trials",
+        ),
+        (
+            vec![
+                "verify",
+                blob,
+                "--float",
+                ck,
+                "--data",
+                "x",
+                "--min-flag-agreement",
+                "2",
+            ],
+            "0 ≤ x ≤ 1",
+        ),
+        (
+            vec![
+                "verify", blob, "--float", ck, "--data", "x", "--max-dp", "2",
+            ],
+            "0 ≤ x ≤ 1",
+        ),
+        (vec!["export", ck, "--max-trials", "0"], "--max-trials"),
+        (vec!["upload", blob, "--port", "x", "--baud", "0"], "--baud"),
+    ] {
+        let out = run(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains(needle) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
+}
+
+#[test]
+fn every_subcommand_help_has_an_example() {
+    for sub in ["export", "inspect", "verify", "upload", "run"] {
+        let out = run(&[sub, "--help"]);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{sub}: {text}");
+        assert!(
+            text.contains("Example") && text.contains("slipguard-export "),
+            "{sub} --help has no example:\n{text}"
+        );
+    }
+}
+
+#[test]
+fn verify_on_the_training_trials_says_in_sample() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let blob = root.join("models/hand-force/hand-force.bin");
+    let ck = root.join("models/hand-force/hand-force.safetensors");
+    let data = data_dir();
+    let out = run(&[
+        "verify",
+        s(&blob),
+        "--float",
+        s(&ck),
+        "--data",
+        s(&data),
+        "-q",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("in-sample"), "{err}");
+    // A fixture checkpoint without trainer metadata: no note.
+    let out = run(&[
+        "verify",
+        "../firmware/core/tests/fixtures/bench/model.bin",
+        "--float",
+        s(&fixture("torch_c.safetensors")),
+        "--data",
+        s(&data),
+        "--max-trials",
+        "2",
+        "-q",
+    ]);
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("in-sample"));
+}

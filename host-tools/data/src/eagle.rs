@@ -41,8 +41,12 @@ struct Meta {
 /// Read a `tactile.csv`: header of channel names, then rows of numbers.
 /// Returns (channel names, channel-major samples).
 pub fn read_tactile_csv(path: &Path) -> Result<(Vec<String>, Vec<Vec<f32>>)> {
-    let text = read_text(path)?;
-    let mut it = records(path, &text, 1)?.into_iter();
+    parse_tactile_csv(&read_text(path)?, path)
+}
+
+/// [`read_tactile_csv`] on text already read (`path` names it in errors).
+pub fn parse_tactile_csv(text: &str, path: &Path) -> Result<(Vec<String>, Vec<Vec<f32>>)> {
+    let mut it = records(path, text, 1)?.into_iter();
     let header = it
         .next()
         .ok_or_else(|| parse_error(path, 1, None, None, "empty file: no header"))?;

@@ -82,6 +82,24 @@ pub struct EpochLog {
     pub seconds: f64,
 }
 
+/// What [`train`] reports as it goes: after every batch, and after every epoch.
+#[derive(Debug, Clone, Copy)]
+pub enum Progress<'a> {
+    /// One optimiser step done.
+    Batch {
+        /// Epoch (1-based).
+        epoch: usize,
+        /// Batches done in this epoch.
+        batch: usize,
+        /// Batches per epoch.
+        batches: usize,
+        /// The epoch's running training loss (weighted mean over its batches so far).
+        train_loss: f64,
+    },
+    /// An epoch done, with its validation loss.
+    Epoch(&'a EpochLog),
+}
+
 /// What [`train`] returns.
 #[derive(Debug, Clone)]
 pub struct TrainOutcome {
@@ -290,13 +308,13 @@ pub fn init_model(config: ModelConfig, seed: u64, seqs: &[&ChannelSequence]) -> 
 }
 
 /// Trains `init` (weights and normalisation as given) on `train`, early-stopping on `val`.
-/// `progress` sees every epoch.
+/// `progress` sees every batch and every epoch.
 pub fn train(
     init: &FloatModel,
     train: &[&ChannelSequence],
     val: &[&ChannelSequence],
     cfg: &TrainConfig,
-    mut progress: impl FnMut(&EpochLog),
+    mut progress: impl FnMut(Progress<'_>),
 ) -> Result<TrainOutcome> {
     if train.is_empty() {
         return Err(LearnError::Training("no training sequences".into()));
@@ -341,12 +359,19 @@ pub fn train(
         let t0 = Instant::now();
         order.shuffle(&mut rng);
         let (mut s, mut n) = (0f64, 0f64);
-        for chunk in order.chunks(cfg.batch.max(1)) {
+        let batches = order.len().div_ceil(cfg.batch.max(1));
+        for (k, chunk) in order.chunks(cfg.batch.max(1)).enumerate() {
             let b = make_batch(&ptrain, chunk, nf, cfg, &dev)?;
             let loss = batch_loss(&net, &b)?;
             opt.backward_step(&loss)?;
             s += loss.to_scalar::<f32>()? as f64 * b.wsum;
             n += b.wsum;
+            progress(Progress::Batch {
+                epoch,
+                batch: k + 1,
+                batches,
+                train_loss: s / n.max(1e-9),
+            });
         }
         let train_loss = s / n.max(1e-9);
         let val_loss = if val_batches.is_empty() {
@@ -360,7 +385,7 @@ pub fn train(
             val_loss,
             seconds: t0.elapsed().as_secs_f64(),
         };
-        progress(&log);
+        progress(Progress::Epoch(&log));
         history.push(log);
         if !train_loss.is_finite() {
             return Err(LearnError::Training(format!(

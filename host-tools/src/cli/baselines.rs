@@ -53,32 +53,32 @@ pub struct Args {
         default_value = "stable,nb,knn,svm"
     )]
     pub models: Vec<Model>,
-    /// Folds by trial; 0 = leave one trial out.
+    /// Folds by trial; 0 = leave one trial out, else 2 to the number of trials.
     #[arg(long, default_value_t = 0)]
     pub folds: usize,
     /// Only these trial ids (repeatable).
     #[arg(long = "trial")]
     pub trials: Vec<String>,
     /// Neighbours of KNN.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = super::check::usize_in!(1..))]
     pub k: usize,
     /// SVM soft margin C.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = super::check::positive)]
     pub svm_c: f64,
     /// SVM RBF gamma (default 1 / number of features, on standardised features).
-    #[arg(long)]
+    #[arg(long, value_parser = super::check::positive)]
     pub svm_gamma: Option<f64>,
     /// SVM training steps per fold at most (evenly spaced); 0 = all.
-    #[arg(long, default_value_t = 4000)]
+    #[arg(long, default_value_t = 4000, value_parser = super::check::usize_in!(1..))]
     pub svm_max_train: usize,
     /// Raw force (mN) that maps to 1.0 in the single-channel features.
-    #[arg(long, default_value_t = DEFAULT_FULL_SCALE_MN)]
+    #[arg(long, default_value_t = DEFAULT_FULL_SCALE_MN, value_parser = clap::value_parser!(i32).range(1..))]
     pub full_scale: i32,
     /// Steps before the drop from which steps are unstable.
     #[arg(long, default_value_t = 20)]
     pub lead: usize,
     /// Sequence length from grasp start.
-    #[arg(long, default_value_t = 160)]
+    #[arg(long, default_value_t = 160, value_parser = super::check::usize_in!(1..=1_000_000))]
     pub seq_len: usize,
     /// Print the report as JSON on stdout instead of the table.
     #[arg(long)]
@@ -170,7 +170,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     // not predicted in that set).
     let all_multi = build_sequences(&trials, &labels, FeatureSet::MultiChannel, a.full_scale);
     anyhow::ensure!(!all_multi.is_empty(), "no labelled trials to evaluate");
-    let folds = make_folds(&trial_outcomes(&all_multi), plan);
+    let outcomes = trial_outcomes(&all_multi);
+    anyhow::ensure!(
+        a.folds != 1 && a.folds <= outcomes.len(),
+        "--folds {}: 0 (leave one trial out) or 2 to the number of labelled trials ({})",
+        a.folds,
+        outcomes.len()
+    );
+    let folds = make_folds(&outcomes, plan);
 
     let mut results: Vec<CvResult> = Vec::new();
     for &set in sets {

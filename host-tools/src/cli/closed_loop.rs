@@ -11,10 +11,11 @@ use slipguard::closed_loop::{
     ControllerConfig, FlagSource, Outcome, Scenario, Situation, min_grip_needed, run_trial,
     summarise,
 };
-use slipguard::replay::{default_models, load_blob, shipped_blobs};
+use slipguard::replay::{default_models, shipped_blobs};
+
+use super::check;
 use slipguard_app::profile::Profile;
 use slipguard_core::decision::Q15;
-use slipguard_core::model::Model;
 
 #[derive(Debug, Parser)]
 pub struct Args {
@@ -23,14 +24,14 @@ pub struct Args {
     /// golden untrained blob.
     #[arg(long)]
     pub model: Vec<PathBuf>,
-    /// Trials per situation.
-    #[arg(long, default_value_t = 40)]
+    /// Trials per situation (≥ 1).
+    #[arg(long, default_value_t = 40, value_parser = check::usize_in!(1..))]
     pub trials: usize,
     /// Seed of the scenarios.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Grip step per unstable frame, as a fraction of the initial grip.
-    #[arg(long, default_value_t = 0.2)]
+    /// Grip step per unstable frame, as a fraction of the initial grip (> 0).
+    #[arg(long, default_value_t = 0.2, value_parser = check::positive)]
     pub step: f64,
     /// Also run a perfect detector (true load ratio ≥ 0.85) with the same latency, at each
     /// model's frame rate.
@@ -43,12 +44,12 @@ pub struct Args {
     /// Write closed-loop.md and one PNG per situation here.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Threads (default: available cores).
-    #[arg(long)]
+    /// Threads (default: available cores; 1…1024).
+    #[arg(long, value_parser = check::usize_in!(1..=1024))]
     pub threads: Option<usize>,
     /// Decision threshold on p(unstable) the controller sets after grasp start (set-threshold
-    /// command); default: the blob's.
-    #[arg(long)]
+    /// command), 0 < threshold < 1; default: the blob's.
+    #[arg(long, value_parser = check::open_unit)]
     pub threshold: Option<f64>,
     /// The controller ignores flags for this long after grasp start (ms).
     #[arg(long, default_value_t = 0)]
@@ -57,12 +58,16 @@ pub struct Args {
     /// step reaches the fingers before it steps again (0 = a step on every unstable frame).
     #[arg(long, default_value_t = 0)]
     pub hold_off_ms: u32,
-    /// Consecutive unstable frames before the flag rises, with `--threshold`.
-    #[arg(long, default_value_t = 1, requires = "threshold")]
+    /// Consecutive unstable frames before the flag rises, with `--threshold` (1…255).
+    #[arg(long, default_value_t = 1, requires = "threshold", value_parser = clap::value_parser!(u8).range(1..))]
     pub raise_after: u8,
-    /// Consecutive stable frames before the flag clears, with `--threshold`.
-    #[arg(long, default_value_t = 1, requires = "threshold")]
+    /// Consecutive stable frames before the flag clears, with `--threshold` (1…255).
+    #[arg(long, default_value_t = 1, requires = "threshold", value_parser = clap::value_parser!(u8).range(1..))]
     pub clear_after: u8,
+    /// Run a blob the firmware would refuse (does not parse, over the build's bounds, rate or
+    /// unit not the hand profile's) after a warning, instead of stopping.
+    #[arg(long)]
+    pub allow_bad_model: bool,
 }
 
 struct Source {
@@ -115,10 +120,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }];
     let mut rates = Vec::new();
     for m in &models {
-        let blob = load_blob(m)?;
-        // A blob that does not parse still runs (the firmware answers with fault frames).
-        let rate_mhz = Model::from_bytes(blob.as_bytes())
-            .map_or(default_rate, |model| model.config().sample_rate_mhz);
+        // A blob the firmware refuses runs only with --allow-bad-model (fault frames only).
+        let (blob, cfg) = check::load_model("closed-loop", m, &Profile::HAND, a.allow_bad_model)?;
+        let rate_mhz = cfg.map_or(default_rate, |c| c.sample_rate_mhz);
         if !rates.contains(&rate_mhz) {
             rates.push(rate_mhz);
         }
@@ -252,7 +256,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             }
         );
         if let Some(dir) = &a.out {
-            std::fs::create_dir_all(dir)?;
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
             let png = dir.join(format!("closed-loop-{}.png", sit.name()));
             plot(&scenarios, &results, &min, sit, &png)?;
         }
@@ -284,7 +288,11 @@ fn plot(
         RGBColor(255, 127, 14),
     ];
     let rows = scenarios.len().min(3);
-    let root = BitMapBackend::new(path, (1100, 300 * rows.max(1) as u32)).into_drawing_area();
+    let root = BitMapBackend::new(
+        slipguard::plot::writable(path)?,
+        (1100, 300 * rows.max(1) as u32),
+    )
+    .into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
     let cells = root.split_evenly((rows.max(1), 1));
     for (k, area) in cells.iter().enumerate().take(rows) {

@@ -1,7 +1,6 @@
 //! `slipguard dataset info PATH`.
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::Subcommand;
 use slipguard_data::labels::LabelConfig;
 use slipguard_data::{Outcome, eagle, load_path};
@@ -11,6 +10,7 @@ use super::progress::bar;
 #[derive(Debug, Subcommand)]
 pub enum DatasetCommand {
     /// Summarise every trial: size, rate, unit, marks, outcome, drop step, contact channels.
+    #[command(after_help = "Examples:\n  slipguard dataset info\n  slipguard dataset info out/sim")]
     Info {
         /// Dataset root, trial folder, recording file or folder of recordings
         /// (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
@@ -30,8 +30,7 @@ fn info(path: Option<PathBuf>) -> anyhow::Result<()> {
     let trials = load_path(&path, &LabelConfig::default(), |i, n| {
         pb.set_length(n as u64);
         pb.set_position(i as u64);
-    })
-    .with_context(|| format!("loading {}", path.display()))?;
+    })?;
     pb.finish_and_clear();
     println!("{}: {} trials", path.display(), trials.len());
     println!(

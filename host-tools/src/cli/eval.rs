@@ -47,14 +47,14 @@ pub struct Args {
     /// Plots per model and data set.
     #[arg(long, default_value_t = 4)]
     pub plot_count: usize,
-    /// Override every model's decision threshold (p(unstable)).
-    #[arg(long)]
+    /// Override every model's decision threshold (p(unstable)), 0 < threshold < 1.
+    #[arg(long, value_parser = super::check::open_unit)]
     pub threshold: Option<f64>,
-    /// Override every model's raise_after (hysteresis).
-    #[arg(long)]
+    /// Override every model's raise_after (hysteresis), 1…255.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..))]
     pub raise_after: Option<u8>,
-    /// Override every model's clear_after.
-    #[arg(long)]
+    /// Override every model's clear_after, 1…255.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..))]
     pub clear_after: Option<u8>,
     /// Write the figures as JSON: `paper.success_rate`, `paper.ahead_drop`, `armed.grasps`,
     /// `armed.failures`, `armed.detected`, `armed.detected_rate`, `armed.lead_median_ms`,
@@ -67,6 +67,11 @@ pub struct Args {
     /// Also write the table (markdown) to this file.
     #[arg(long)]
     pub markdown: Option<PathBuf>,
+    /// A checkpoint's `.bin` that the firmware would refuse (does not parse, over the build's
+    /// bounds, rate or unit not the profile's): warn and quantize the checkpoint afresh instead
+    /// of stopping.
+    #[arg(long)]
+    pub allow_bad_model: bool,
 }
 
 /// A model to evaluate: one checkpoint, or the folds of a cross-validation.
@@ -75,11 +80,43 @@ pub struct Group {
     pub members: Vec<(Checkpoint, Option<Vec<u8>>)>,
 }
 
-fn load_member(p: &Path) -> anyhow::Result<(Checkpoint, Option<Vec<u8>>)> {
-    let ck = checkpoint::read(p)?;
-    let bin = p.with_extension("bin");
+fn load_member(p: &Path, allow_bad: bool) -> anyhow::Result<(Checkpoint, Option<Vec<u8>>)> {
+    let ck_path = p.with_extension("safetensors");
+    if p.extension().is_some_and(|e| e == "bin") && !ck_path.exists() {
+        anyhow::bail!(
+            "{}: a blob alone cannot be evaluated here (eval compares the float model with its              quantized blob and needs {} beside it); run the blob through the firmware path              with `slipguard replay --model {}` instead",
+            p.display(),
+            ck_path.display(),
+            p.display()
+        );
+    }
+    let ck = checkpoint::read(&ck_path)?;
+    let bin = ck_path.with_extension("bin");
     let blob = if bin.exists() {
-        Some(std::fs::read(&bin).with_context(|| format!("reading {}", bin.display()))?)
+        let b = std::fs::read(&bin).with_context(|| format!("reading {}", bin.display()))?;
+        let profile = match ck.model.config.input_unit {
+            InputUnit::Counts => slipguard_app::profile::Profile::SUCTION,
+            _ => slipguard_app::profile::Profile::HAND,
+        };
+        match slipguard::replay::check_blob(
+            &profile,
+            slipguard_core::blob::AlignedBlob::new(&b).as_bytes(),
+        ) {
+            Ok(_) => Some(b),
+            Err(why) if allow_bad => {
+                eprintln!(
+                    "eval: warning: {}: {why}; evaluating the checkpoint quantized afresh \
+                     instead (--allow-bad-model)",
+                    bin.display()
+                );
+                None
+            }
+            Err(why) => anyhow::bail!(
+                "{}: {why} (remove or re-export it, or --allow-bad-model to quantize the \
+                 checkpoint afresh instead)",
+                bin.display()
+            ),
+        }
     } else {
         None
     };
@@ -106,7 +143,7 @@ fn fold_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
 }
 
 /// Resolves the command-line paths into model groups.
-pub fn resolve(paths: &[PathBuf]) -> anyhow::Result<Vec<Group>> {
+pub fn resolve(paths: &[PathBuf], allow_bad: bool) -> anyhow::Result<Vec<Group>> {
     let mut out = Vec::new();
     let stem = |p: &Path| {
         p.file_stem()
@@ -117,7 +154,7 @@ pub fn resolve(paths: &[PathBuf]) -> anyhow::Result<Vec<Group>> {
         if p.is_file() {
             out.push(Group {
                 name: stem(p),
-                members: vec![load_member(p)?],
+                members: vec![load_member(p, allow_bad)?],
             });
             continue;
         }
@@ -127,7 +164,7 @@ pub fn resolve(paths: &[PathBuf]) -> anyhow::Result<Vec<Group>> {
                 name: format!("{} (CV)", stem(p)),
                 members: folds
                     .iter()
-                    .map(|f| load_member(f))
+                    .map(|f| load_member(f, allow_bad))
                     .collect::<anyhow::Result<_>>()?,
             });
             continue;
@@ -140,7 +177,7 @@ pub fn resolve(paths: &[PathBuf]) -> anyhow::Result<Vec<Group>> {
             if e.is_file() && is_ck(&e) {
                 out.push(Group {
                     name: stem(&e),
-                    members: vec![load_member(&e)?],
+                    members: vec![load_member(&e, allow_bad)?],
                 });
             } else if e.is_dir() {
                 let folds = fold_files(&e)?;
@@ -149,7 +186,7 @@ pub fn resolve(paths: &[PathBuf]) -> anyhow::Result<Vec<Group>> {
                         name: format!("{} (CV)", stem(&e)),
                         members: folds
                             .iter()
-                            .map(|f| load_member(f))
+                            .map(|f| load_member(f, allow_bad))
                             .collect::<anyhow::Result<_>>()?,
                     });
                 }
@@ -263,7 +300,7 @@ pub fn heldout_lines(g: &Group) -> Vec<String> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let mut groups = resolve(&a.models)?;
+    let mut groups = resolve(&a.models, a.allow_bad_model)?;
     for g in &mut groups {
         for (ck, blob) in &mut g.members {
             let c = &mut ck.model.config;

@@ -28,19 +28,19 @@ pub struct Args {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Steps before the drop from which steps are unstable.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = super::check::usize_in!(0..=100_000))]
     pub lead: usize,
     /// Sequence length from grasp start.
-    #[arg(long, default_value_t = 160)]
+    #[arg(long, default_value_t = 160, value_parser = super::check::usize_in!(1..=1_000_000))]
     pub seq_len: usize,
     /// Drop when the contact sum is below this fraction of its lift-window peak...
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = super::check::open_unit_f32)]
     pub drop_fraction: f32,
     /// ... for this many steps.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 10, value_parser = super::check::usize_in!(1..=100_000))]
     pub drop_hold: usize,
     /// Contact threshold (mN above baseline) for force channels.
-    #[arg(long, default_value_t = 500.0)]
+    #[arg(long, default_value_t = 500.0, value_parser = super::check::positive_f32)]
     pub contact_mn: f32,
     /// Trials of unknown outcome (the monitor's recordings): failure if the force shows a
     /// lasting drop after the lift, else success (printed per trial; check it against what you

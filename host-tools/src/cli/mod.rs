@@ -3,6 +3,7 @@
 //! an `Args` struct and `run(args) -> anyhow::Result<()>`, and one variant below.
 
 mod baselines;
+mod check;
 mod closed_loop;
 mod dataset;
 mod demo;
@@ -30,24 +31,48 @@ pub struct Cli {
 pub enum Command {
     /// Inspect trial data (eagle-shoal folders or slipguard recordings).
     #[command(subcommand)]
+    #[command(after_help = "Example:\n  slipguard dataset info data/eagle-shoal")]
     Dataset(dataset::DatasetCommand),
     /// Detect drops and contact, label trials as the paper does, print statistics.
+    #[command(
+        after_help = "Examples:\n  slipguard label --stats\n  slipguard label data/eagle-shoal --trial Cheez_100_814_top_3 --plot out/label.png"
+    )]
     Label(label::Args),
     /// Simulate force or suction trials, or validate the simulator against real data.
+    #[command(
+        after_help = "Examples:\n  slipguard simulate --count 20 --seed 5 --out out/sim\n  slipguard simulate --validate --report-dir out/sim-validation"
+    )]
     Simulate(simulate::Args),
     /// The paper's Table I baselines (NB, KNN, SVM), cross-validated by trial.
+    #[command(after_help = "Example:\n  slipguard baselines --folds 5 --models nb,knn")]
     Baselines(baselines::Args),
     /// Watch the firmware's flag stream (serial port or capture): live view, loss counts, recording.
+    #[command(
+        after_help = "Examples:\n  slipguard monitor --port /dev/ttyUSB0 --info --grasp-start\n  slipguard monitor --capture frames.bin --view lines --record out/trial.csv"
+    )]
     Monitor(monitor::Args),
     /// Run a trial through the firmware's exact path; write the frames it would send and a Fig. 8 plot.
+    #[command(
+        after_help = "Examples:\n  slipguard replay data/eagle-shoal/trials/Cheez_100_814_top_3 --script marks --png out/fig8.png\n  slipguard replay trial.csv --model models/hand-force/hand-force.bin --out frames.bin"
+    )]
     Replay(replay::Args),
     /// Simulated hand lifting objects with a light grip: drop rate with slip prediction off vs on.
+    #[command(
+        after_help = "Example:\n  slipguard closed-loop --trials 20 --oracle --out out/closed-loop"
+    )]
     ClosedLoop(closed_loop::Args),
     /// Train the paper's four LSTM variants (candle), with cross-validation by trial.
+    #[command(
+        after_help = "Examples:\n  slipguard train --variant lstm --hidden 32 --epochs 5 --out runs/quick\n  slipguard train --variant all --cv 5 --tune-decision --out runs/cv"
+    )]
     Train(train::Args),
     /// Evaluate checkpoints (float and quantized) on real held-out and simulated data.
+    #[command(
+        after_help = "Example:\n  slipguard eval models/hand-force/hand-force.safetensors runs/cv/lstm"
+    )]
     Eval(eval::Args),
     /// Run the shipped models through the bit-exact core on real and simulated data (README's main command).
+    #[command(after_help = "Example:\n  slipguard demo --out out/demo")]
     Demo(demo::Args),
 }
 

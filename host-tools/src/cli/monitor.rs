@@ -10,7 +10,9 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use clap::{Parser, ValueEnum};
 use slipguard::monitor::{Event, FLUSH_EVERY, Monitor, Recorder, parse_command};
-use slipguard_core::protocol::{self, Command, Frame, MAX_WIRE, Message, StreamMode};
+use slipguard_core::protocol::{
+    self, Command, Frame, MAX_WIRE, Message, ReplyBody, ReplyStatus, StreamMode,
+};
 use slipguard_data::recording::write_recording;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -31,7 +33,7 @@ pub struct Args {
     #[arg(long, conflicts_with = "capture", required_unless_present = "capture")]
     pub port: Option<String>,
     /// Baud rate (8N1, no flow control).
-    #[arg(long, default_value_t = 921_600)]
+    #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..))]
     pub baud: u32,
     /// Read a capture file (raw bytes as received) instead of a port.
     #[arg(long)]
@@ -59,10 +61,10 @@ pub struct Args {
     #[arg(long)]
     pub no_keys: bool,
     /// Stop after this many flag frames.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub frames: Option<u64>,
     /// Stop after this many seconds (port only).
-    #[arg(long)]
+    #[arg(long, value_parser = super::check::positive)]
     pub seconds: Option<f64>,
     /// Port only: send an info command first (learns the frame rate and the model).
     #[arg(long)]
@@ -104,18 +106,113 @@ fn describe(ev: &Event) -> String {
             } else {
                 String::new()
             };
-            match frame.msg {
-                Message::Flags(f) => format!(
-                    "seq {:5} flags t={:.3}s unstable={:#06x} fault={:#06x}{gap}",
-                    frame.seq,
-                    f.timestamp_us as f64 / 1e6,
-                    f.unstable,
-                    f.fault
-                ),
-                m => format!("seq {:5} {m:?}{gap}", frame.seq),
-            }
+            format!("seq {:5} {}{gap}", frame.seq, message_line(&frame.msg))
         }
         Event::Corrupt(e) => format!("corrupt run: {e} (resynchronised at the next delimiter)"),
+    }
+}
+
+fn stream_name(m: StreamMode) -> &'static str {
+    match m {
+        StreamMode::Flags => "flags",
+        StreamMode::FlagsAndSamples => "flags and samples",
+        StreamMode::Samples => "samples",
+    }
+}
+
+fn command_line(c: &Command) -> String {
+    match *c {
+        Command::Ping { token } => format!("ping token={token}"),
+        Command::GraspStart => "grasp start".into(),
+        Command::Release => "release".into(),
+        Command::SetThreshold {
+            threshold_q15,
+            raise_after,
+            clear_after,
+        } => format!(
+            "set threshold p>={:.3} raise_after={raise_after} clear_after={clear_after}",
+            threshold_q15 as f64 / 32768.0
+        ),
+        Command::Info => "info".into(),
+        Command::Lift => "lift".into(),
+        Command::StreamMode(m) => format!("stream mode {}", stream_name(m)),
+        Command::UploadBegin { size, crc } => format!("upload begin size={size} crc={crc:#010x}"),
+        Command::UploadChunk(ch) => format!("upload chunk offset={} len={}", ch.offset, ch.len),
+        Command::UploadCommit => "upload commit".into(),
+    }
+}
+
+/// One readable line per message (names and numbers, no Rust debug output).
+fn message_line(m: &Message) -> String {
+    let t = |us: u32| us as f64 / 1e6;
+    match m {
+        Message::Flags(f) => format!(
+            "flags t={:.3}s unstable={:#06x} fault={:#06x}",
+            t(f.timestamp_us),
+            f.unstable,
+            f.fault
+        ),
+        Message::Samples(s) => format!(
+            "samples t={:.3}s channels={} fault={:#06x}",
+            t(s.timestamp_us),
+            s.channels,
+            s.fault
+        ),
+        Message::Fault(f) => format!(
+            "system fault t={:.3}s code={} detail={} value={} (docs/protocol.md lists the codes)",
+            t(f.timestamp_us),
+            f.code,
+            f.detail,
+            f.value
+        ),
+        Message::Error(e) => format!(
+            "error: the device rejected frame seq {} (type {:#04x}), error code {}",
+            e.request_seq, e.msg_type, e.error
+        ),
+        Message::Command(c) => format!("command {}", command_line(c)),
+        Message::Reply(r) => {
+            let status = match r.status {
+                ReplyStatus::Ok => "ok",
+                ReplyStatus::BadArgument => "bad argument",
+                ReplyStatus::NoModel => "no model",
+            };
+            let body = match r.body {
+                ReplyBody::Pong { token } => format!("pong token={token}"),
+                ReplyBody::GraspStarted => "grasp started".into(),
+                ReplyBody::Released => "released".into(),
+                ReplyBody::ThresholdSet {
+                    threshold_q15,
+                    raise_after,
+                    clear_after,
+                } => format!(
+                    "threshold set p>={:.3} raise_after={raise_after} clear_after={clear_after}",
+                    threshold_q15 as f64 / 32768.0
+                ),
+                ReplyBody::Info(i) => format!(
+                    "info firmware {}.{}.{} profile {} channels={} model {} id={:#010x} crc={:#010x}",
+                    i.firmware[0],
+                    i.firmware[1],
+                    i.firmware[2],
+                    if i.profile == 1 { "suction" } else { "hand" },
+                    i.channels,
+                    if i.model_ok == 1 { "ok" } else { "refused" },
+                    i.model_id,
+                    i.model_crc
+                ),
+                ReplyBody::Lifted => "lifted".into(),
+                ReplyBody::StreamMode(m) => format!("stream mode {}", stream_name(m)),
+                ReplyBody::Upload {
+                    command,
+                    code,
+                    detail,
+                    slot,
+                    value,
+                } => format!(
+                    "upload type={command:#04x} code={code} detail={detail} slot={slot} value={value}"
+                ),
+            };
+            format!("reply to seq {} ({status}): {body}", r.request_seq)
+        }
     }
 }
 
@@ -284,7 +381,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if view == View::Table {
         let _ = write!(out, "\x1b[H\x1b[2J");
     }
-    let _ = write!(out, "{}", mon.view());
+    if view == View::Table {
+        let _ = write!(out, "{}", mon.view());
+    } else {
+        // Lines and none: the counts once, after the stream.
+        let _ = writeln!(out, "summary: {}", mon.stats.summary());
+    }
     if let Some(path) = &a.record {
         let stats = mon.stats.clone();
         let info = mon.info;

@@ -7,6 +7,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use clap::{Parser, ValueEnum};
 use slipguard::replay::{self, Scheduled};
+
+use super::check;
 use slipguard_app::profile::Profile;
 use slipguard_app::replay::OpenWire;
 use slipguard_core::protocol::{Command, Message};
@@ -50,8 +52,8 @@ pub struct Args {
     /// Sensor profile.
     #[arg(long, value_enum, default_value_t = ProfileArg::Auto)]
     pub profile: ProfileArg,
-    /// Rate of a plain tactile.csv, Hz.
-    #[arg(long, default_value_t = 16.7)]
+    /// Rate of a plain tactile.csv, Hz (> 0).
+    #[arg(long, default_value_t = 16.7, value_parser = check::positive_f32)]
     pub rate: f32,
     /// Commands sent to the firmware during the replay.
     #[arg(long, value_enum, default_value_t = Script::None)]
@@ -80,7 +82,7 @@ pub struct Args {
     #[arg(long)]
     pub port: Option<String>,
     /// Baud rate of `--port`.
-    #[arg(long, default_value_t = 921_600)]
+    #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..))]
     pub baud: u32,
     /// A Fig. 8-style plot (PNG).
     #[arg(long)]
@@ -91,6 +93,10 @@ pub struct Args {
     /// Allow a model whose rate differs from the trial's.
     #[arg(long)]
     pub any_rate: bool,
+    /// Replay a blob the firmware would refuse (does not parse, over the build's bounds, rate or
+    /// unit not the profile's) after a warning, instead of stopping: the frames are fault frames.
+    #[arg(long)]
+    pub allow_bad_model: bool,
 }
 
 fn parse_open_wire(s: &str) -> Result<OpenWire, String> {
@@ -165,6 +171,32 @@ fn load_trials(path: &Path, rate: f32) -> anyhow::Result<Vec<Trial>> {
     Ok(vec![load_trial(path, rate)?])
 }
 
+/// Whether the blob's checkpoint (`.safetensors` beside it) was trained on this real trial: a
+/// checkpoint without cross-validation trained on every real trial (eagle-shoal folders, 16.7
+/// Hz), a fold on every trial but its held-out ones.
+pub fn in_sample_note(model: &Path, trial_path: &Path, trial: &Trial) -> Option<String> {
+    let ck_path = model.with_extension("safetensors");
+    let ck = slipguard_learn::checkpoint::read(&ck_path).ok()?;
+    let real = trial_path.is_dir();
+    if !real {
+        return None;
+    }
+    let held_out = ck
+        .extra
+        .get("heldout_trials")
+        .is_some_and(|h| h.split(',').any(|id| id == trial.id));
+    let trained_on_real = ck.model.config.sample_rate_mhz == 16_700
+        && ck.extra.get("val_trials").is_some_and(|v| !v.is_empty());
+    (trained_on_real && !held_out).then(|| {
+        format!(
+            "{} was trained on the real trials, {} among them (in-sample): these flags are not \
+             a held-out result (`slipguard train --cv 5` gives fold checkpoints that are)",
+            model.display(),
+            trial.id
+        )
+    })
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     let trials = load_trials(&a.trial, a.rate)?;
     if trials.len() == 1 {
@@ -211,7 +243,28 @@ fn run_one(
         .model
         .clone()
         .unwrap_or_else(|| replay::default_models(&profile).remove(0));
-    let blob = replay::load_blob(&model)?;
+    if let Some(c) = a.plot_channel
+        && c >= profile.channels
+    {
+        bail!(
+            "--plot-channel {c}: the {} profile has channels 0 to {}",
+            profile.name,
+            profile.channels - 1
+        );
+    }
+    for w in &a.open_wire {
+        if w.channel >= profile.channels {
+            bail!(
+                "--open-wire {}:{}:{}: channel {} is not one of the {} profile's 0 to {}",
+                w.channel,
+                w.from_step,
+                w.to_step,
+                w.channel,
+                profile.name,
+                profile.channels - 1
+            );
+        }
+    }
     // The model takes the profile's channels: a trial with more is refused (they would be
     // dropped), one with fewer is padded with zero-force channels.
     if trial.n_channels() > profile.channels {
@@ -231,6 +284,10 @@ fn run_one(
             profile.channels,
             trial.n_channels()
         );
+    }
+    let (blob, _) = check::load_model("replay", &model, &profile, a.allow_bad_model)?;
+    if let Some(note) = in_sample_note(&model, &a.trial, &trial) {
+        eprintln!("replay: note: {note}");
     }
     let rate_mhz = match replay::check_rate(&trial, blob.as_bytes()) {
         Ok(r) => r.unwrap_or(profile.default_rate_mhz()),

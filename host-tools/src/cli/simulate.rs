@@ -33,7 +33,7 @@ pub struct Args {
     #[arg(long, default_value_t = 16.7)]
     pub rate: f64,
     /// Number of trials (default 10; 100 with --validate).
-    #[arg(long)]
+    #[arg(long, value_parser = super::check::usize_in!(1..=1_000_000))]
     pub count: Option<usize>,
     /// Seed; the same seed gives byte-identical trials.
     #[arg(long, default_value_t = 1)]

@@ -16,8 +16,9 @@ use slipguard_learn::evaluation::{
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
 };
 use slipguard_learn::product::{self, OnsetRule};
-use slipguard_learn::train::{TrainConfig, init_model, split_by_trial, train};
+use slipguard_learn::train::{EpochLog, Progress, TrainConfig, init_model, split_by_trial, train};
 
+use super::check;
 use super::progress::bar;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -35,6 +36,7 @@ pub struct Args {
     /// Output folder (checkpoints, blobs, logs).
     #[arg(long)]
     pub out: PathBuf,
+    /// Sensor: force (real and simulated trials) or suction (simulated).
     #[arg(long, value_enum, default_value_t = Sensor::Force)]
     pub sensor: Sensor,
     /// Variants, comma separated: lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm, or all.
@@ -43,18 +45,22 @@ pub struct Args {
     /// Add the force difference d(t) = x(t) - x(t-1) (paper eq. 3) as an input.
     #[arg(long)]
     pub force_diff: bool,
-    /// LSTM hidden size (each LSTM of the dual variant).
-    #[arg(long, default_value_t = 128)]
+    /// LSTM hidden size (each LSTM of the dual variant), 1…128 (the firmware's bound).
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u16).range(1..=slipguard_core::MAX_HIDDEN as i64))]
     pub hidden: u16,
-    #[arg(long, default_value_t = 6e-4)]
+    /// Learning rate (Adam), > 0.
+    #[arg(long, default_value_t = 6e-4, value_parser = check::positive)]
     pub lr: f64,
-    #[arg(long, default_value_t = 60)]
+    /// Training epochs (≥ 1).
+    #[arg(long, default_value_t = 60, value_parser = check::usize_in!(1..))]
     pub epochs: usize,
     /// Early stopping: epochs without a better validation loss.
     #[arg(long, default_value_t = 10)]
     pub patience: usize,
-    #[arg(long, default_value_t = 32)]
+    /// Sequences per batch (≥ 1).
+    #[arg(long, default_value_t = 32, value_parser = check::usize_in!(1..))]
     pub batch: usize,
+    /// Seed of the weight initialisation and the batch order.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Loss weights of the stable and unstable class, e.g. 1,2.
@@ -64,21 +70,22 @@ pub struct Args {
     #[arg(long, default_value_t = 20)]
     pub label_lead: usize,
     /// Loss weight of the first --start-steps steps of every sequence (against start-up alarms).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = check::non_negative_f32)]
     pub start_weight: f32,
+    /// Steps at the start of every sequence that get --start-weight (0 = none).
     #[arg(long, default_value_t = 0)]
     pub start_steps: usize,
     /// Simulated trials for pre-training (0 = none); the model is then fine-tuned on real data.
     #[arg(long, default_value_t = 0)]
     pub sim_pretrain: usize,
-    /// Epochs of the pre-training.
-    #[arg(long, default_value_t = 15)]
+    /// Epochs of the pre-training (≥ 1).
+    #[arg(long, default_value_t = 15, value_parser = check::usize_in!(1..))]
     pub pretrain_epochs: usize,
     /// Simulated trials mixed into the (fine-)tuning set (suction: the whole training set).
     #[arg(long, default_value_t = 0)]
     pub sim_mix: usize,
-    /// Share of simulated trials drawn as drops.
-    #[arg(long, default_value_t = 0.3)]
+    /// Share of simulated trials drawn as drops (0…1).
+    #[arg(long, default_value_t = 0.3, value_parser = check::unit)]
     pub sim_failure_share: f64,
     /// Seed of the simulated training trials (pre-training uses it, mixing it + 1).
     #[arg(long, default_value_t = 11)]
@@ -97,49 +104,50 @@ pub struct Args {
     pub closed_loop_seed: u64,
     /// Model frame rate (Hz) of the force sensor: 16.7 (the paper's, real trials) or 40 (the
     /// hand profile's fast rate, for closed-loop use; simulated trials only).
-    #[arg(long, default_value_t = 16.7)]
+    #[arg(long, default_value_t = 16.7, value_parser = check::positive_f32)]
     pub rate_hz: f32,
     /// Closed-loop training labels: unstable when the object slips within this many seconds.
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.3, value_parser = check::non_negative)]
     pub closed_loop_lead: f64,
     /// Closed-loop training trials: the teacher also raises the grip on false alarms, at a rate
     /// drawn per trial from 0 to this (per s), so the model learns that the pad force rising
     /// under its controller's raises is not slip (0 = none).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = check::non_negative)]
     pub closed_loop_false_alarms: f64,
     /// Closed-loop training trials: put this trained model blob in the loop instead of the
     /// teacher for --closed-loop-policy-share of the trials, so the data holds the states its
     /// own flags lead to (labels still come from the physics).
     #[arg(long)]
     pub closed_loop_policy: Option<PathBuf>,
-    /// Share of the closed-loop training trials run with --closed-loop-policy.
-    #[arg(long, default_value_t = 0.5)]
+    /// Share of the closed-loop training trials run with --closed-loop-policy (0…1).
+    #[arg(long, default_value_t = 0.5, value_parser = check::unit)]
     pub closed_loop_policy_share: f64,
-    /// Cross-validation by trial with this many folds (0 = train one model on every trial).
+    /// Cross-validation by trial with this many folds (0 = train one model on every trial;
+    /// else 2 to the number of real trials).
     #[arg(long, default_value_t = 0)]
     pub cv: usize,
-    /// Share of the training trials held out (by trial) for early stopping.
-    #[arg(long, default_value_t = 0.2)]
+    /// Share of the training trials held out (by trial) for early stopping (0 ≤ x < 1).
+    #[arg(long, default_value_t = 0.2, value_parser = check::share_below_one)]
     pub val_share: f64,
-    /// Decision threshold on p(unstable).
-    #[arg(long, default_value_t = 0.5)]
+    /// Decision threshold on p(unstable), 0 < threshold < 1.
+    #[arg(long, default_value_t = 0.5, value_parser = check::open_unit)]
     pub threshold: f64,
-    /// Steps at or above the threshold before the flag rises.
-    #[arg(long, default_value_t = 1)]
+    /// Steps at or above the threshold before the flag rises (1…255).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub raise_after: u8,
-    /// Steps below the threshold before the flag clears.
-    #[arg(long, default_value_t = 1)]
+    /// Steps below the threshold before the flag clears (1…255).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub clear_after: u8,
     /// Pick threshold and hysteresis on the validation trials (overrides the three above).
     #[arg(long)]
     pub tune_decision: bool,
     /// With --tune-decision: smallest raise_after the sweep may pick (suppresses start-up blips).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub min_raise: u8,
     /// With --tune-decision on real trials: the decision maximises (validation failures detected
     /// ≥ 300 ms ahead) − (validation successes with a hand flag in their armed window), shares,
     /// with a further penalty on a false-alarm share over this bound.
-    #[arg(long, default_value_t = 0.125)]
+    #[arg(long, default_value_t = 0.125, value_parser = check::unit)]
     pub max_false_alarm_rate: f64,
     /// Train on sequences from the grasp start instead of from each channel's contact onset
     /// (the firmware's model state starts at the onset; this is for comparison only).
@@ -148,8 +156,8 @@ pub struct Args {
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
-    /// Short name written into the blob header (≤ 12 ASCII characters).
-    #[arg(long)]
+    /// Short name written into the blob header (1 to 12 printable ASCII characters).
+    #[arg(long, value_parser = check::blob_name)]
     pub blob_name: Option<String>,
 }
 
@@ -209,15 +217,28 @@ impl Run<'_> {
         tr: &[&ChannelSequence],
         val: &[&ChannelSequence],
         tc: &TrainConfig,
-    ) -> anyhow::Result<(FloatModel, usize, f64)> {
+    ) -> anyhow::Result<(FloatModel, usize, f64, Vec<EpochLog>)> {
         let pb = bar(tc.epochs as u64, what);
+        pb.enable_steady_tick(std::time::Duration::from_millis(500));
         let t0 = Instant::now();
-        let out = train(init, tr, val, tc, |l| {
-            pb.set_position(l.epoch as u64);
-            pb.set_message(format!(
-                "{what} {:.4}/{:.4} {:.1}s",
-                l.train_loss, l.val_loss, l.seconds
-            ));
+        let mut last_val = String::new();
+        let out = train(init, tr, val, tc, |p| match p {
+            Progress::Batch {
+                epoch,
+                batch,
+                batches,
+                train_loss,
+            } => pb.set_message(format!(
+                "{what} epoch {epoch} batch {batch}/{batches} train loss {train_loss:.4}{last_val}"
+            )),
+            Progress::Epoch(l) => {
+                pb.set_position(l.epoch as u64);
+                last_val = format!(
+                    " (epoch {}: val loss {:.4}, {:.1} s)",
+                    l.epoch, l.val_loss, l.seconds
+                );
+                pb.set_message(format!("{what} train loss {:.4}{last_val}", l.train_loss));
+            }
         })?;
         pb.finish_and_clear();
         let n = out.history.len();
@@ -233,7 +254,7 @@ impl Run<'_> {
                 .get(out.best_epoch.saturating_sub(1))
                 .map_or(f64::NAN, |l| l.val_loss)
         );
-        Ok((out.model, out.best_epoch, spe))
+        Ok((out.model, out.best_epoch, spe, out.history))
     }
 
     fn decision(
@@ -303,8 +324,54 @@ impl Run<'_> {
     }
 }
 
+/// Beside a checkpoint: `<stem>.epochs.csv` (epoch, train and validation loss, seconds) and
+/// `<stem>.metrics.json` (best epoch and its losses, epochs run, total seconds, sequences).
+fn write_train_log(
+    checkpoint: &Path,
+    history: &[EpochLog],
+    best_epoch: usize,
+    n_train: usize,
+    n_val: usize,
+) -> anyhow::Result<()> {
+    let mut csv = String::from("epoch,train_loss,val_loss,seconds\n");
+    for l in history {
+        csv += &format!(
+            "{},{:.6},{:.6},{:.3}\n",
+            l.epoch, l.train_loss, l.val_loss, l.seconds
+        );
+    }
+    let log = checkpoint.with_extension("epochs.csv");
+    std::fs::write(&log, csv).with_context(|| format!("writing {}", log.display()))?;
+    let best = history.get(best_epoch.saturating_sub(1));
+    let finite = |v: Option<f64>| v.filter(|v| v.is_finite());
+    let metrics = serde_json::json!({
+        "best_epoch": best_epoch,
+        "best_train_loss": finite(best.map(|l| l.train_loss)),
+        "best_val_loss": finite(best.map(|l| l.val_loss)),
+        "epochs_run": history.len(),
+        "seconds": history.iter().map(|l| l.seconds).sum::<f64>(),
+        "train_sequences": n_train,
+        "val_sequences": n_val,
+    });
+    let json = checkpoint.with_extension("metrics.json");
+    std::fs::write(&json, serde_json::to_string_pretty(&metrics)? + "\n")
+        .with_context(|| format!("writing {}", json.display()))?;
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     let variants = parse_variants(&a.variant)?;
+    let profile = match a.sensor {
+        Sensor::Force => slipguard_app::profile::Profile::HAND,
+        Sensor::Suction => slipguard_app::profile::Profile::SUCTION,
+    };
+    if a.sensor == Sensor::Force {
+        check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
+    }
+    anyhow::ensure!(
+        a.cv != 1,
+        "--cv 1: cross-validation needs 0 (off) or 2 to the number of real trials folds"
+    );
     let tc = TrainConfig {
         lr: a.lr,
         epochs: a.epochs,
@@ -458,11 +525,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 epochs: a.pretrain_epochs,
                 ..run.tc.clone()
             };
-            let (m, _, spe) = run.fit("pretrain", &init, &tr, &val, &tc)?;
+            let (m, _, spe, _) = run.fit("pretrain", &init, &tr, &val, &tc)?;
             timing.push(format!("pretrain {spe:.2} s/epoch ({} seqs)", tr.len()));
             Some(m)
         };
         let folds: Vec<Vec<String>> = if a.cv > 0 {
+            let n_trials = real_trials.len();
+            anyhow::ensure!(
+                a.cv <= n_trials,
+                "--cv {}: at most the number of real trials ({n_trials}) folds",
+                a.cv
+            );
             cv_folds(&real, a.cv)
         } else {
             vec![Vec::new()]
@@ -495,7 +568,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             } else {
                 "train".to_string()
             };
-            let (mut model, best_epoch, spe) = run.fit(&what, &init, &tr, &val, &run.tc)?;
+            let (mut model, best_epoch, spe, history) =
+                run.fit(&what, &init, &tr, &val, &run.tc)?;
             timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
             let val_seqs: Vec<&Sequence> = real
                 .iter()
@@ -529,6 +603,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             if a.cv > 0 {
                 let p = a.out.join(&name).join(format!("fold{k}.safetensors"));
                 checkpoint::write(&p, &ck)?;
+                write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
                 let test: Vec<&Sequence> = real
                     .iter()
                     .filter(|s| held.contains(&s.cs.trial_id))
@@ -568,6 +643,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             } else {
                 let p = a.out.join(format!("{name}.safetensors"));
                 checkpoint::write(&p, &ck)?;
+                write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
                 let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
                 let blob = quantize_model(&ck.model, &calib)?;
                 let bp = a.out.join(format!("{name}.bin"));

@@ -1,0 +1,129 @@
+//! Argument checks shared by the subcommands: clap value parsers for the ranges clap's own
+//! ranged integer parsers do not cover (floats, names), and the model-blob check every
+//! subcommand that reads a blob runs before any work. Each refusal is one line that names the
+//! value and the allowed range (clap adds the argument's name).
+
+use std::path::Path;
+
+use anyhow::bail;
+use slipguard::replay::{check_blob, load_blob};
+use slipguard_app::profile::Profile;
+use slipguard_core::blob::{AlignedBlob, ModelConfig};
+
+/// clap parser: an integer in `lo..=hi` as `usize` (clap's ranged parsers stop at u64).
+macro_rules! usize_in {
+    ($range:expr) => {
+        clap::builder::RangedU64ValueParser::<usize>::new().range($range)
+    };
+}
+pub(crate) use usize_in;
+
+/// A finite number in `ok`, else the value and the allowed `range` in words.
+fn float(s: &str, range: &str, ok: impl Fn(f64) -> bool) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && ok(v) => Ok(v),
+        Ok(v) => Err(format!("{v} is not in the allowed range {range}")),
+        Err(_) => Err(format!(
+            "`{s}` is not a number in the allowed range {range}"
+        )),
+    }
+}
+
+/// clap parser: a probability threshold, strictly between 0 and 1.
+pub fn open_unit(s: &str) -> Result<f64, String> {
+    float(s, "0 < x < 1", |v| v > 0.0 && v < 1.0)
+}
+
+/// clap parser: strictly between 0 and 1, as f32.
+pub fn open_unit_f32(s: &str) -> Result<f32, String> {
+    open_unit(s).map(|v| v as f32)
+}
+
+/// clap parser: a share or rate of occurrence, 0 ≤ x ≤ 1.
+pub fn unit(s: &str) -> Result<f64, String> {
+    float(s, "0 ≤ x ≤ 1", |v| (0.0..=1.0).contains(&v))
+}
+
+/// clap parser: a share strictly below 1 (0 ≤ x < 1).
+pub fn share_below_one(s: &str) -> Result<f64, String> {
+    float(s, "0 ≤ x < 1", |v| (0.0..1.0).contains(&v))
+}
+
+/// clap parser: a finite number > 0.
+pub fn positive(s: &str) -> Result<f64, String> {
+    float(s, "x > 0", |v| v > 0.0)
+}
+
+/// clap parser: a finite number > 0, as f32.
+pub fn positive_f32(s: &str) -> Result<f32, String> {
+    positive(s).map(|v| v as f32)
+}
+
+/// clap parser: a finite number ≥ 0.
+pub fn non_negative(s: &str) -> Result<f64, String> {
+    float(s, "x ≥ 0", |v| v >= 0.0)
+}
+
+/// clap parser: a finite number ≥ 0, as f32.
+pub fn non_negative_f32(s: &str) -> Result<f32, String> {
+    non_negative(s).map(|v| v as f32)
+}
+
+/// clap parser: a model name that fits the blob's name field (printable ASCII, 1 to 12 bytes).
+pub fn blob_name(s: &str) -> Result<String, String> {
+    // The size of `ModelConfig::name`.
+    let max = std::mem::size_of_val(&[0u8; 12]);
+    if s.is_empty() || s.len() > max || !s.bytes().all(|b| b.is_ascii_graphic() || b == b' ') {
+        Err(format!(
+            "`{s}` ({} bytes) does not fit the blob's name field: 1 to {max} printable ASCII characters",
+            s.len()
+        ))
+    } else {
+        Ok(s.to_string())
+    }
+}
+
+/// A frame rate in Hz that one of the sensor profiles runs (`--rate-hz`, `--rate`).
+pub fn profile_rate(flag: &str, rate_hz: f64, profiles: &[Profile]) -> anyhow::Result<u32> {
+    let mhz = (rate_hz * 1000.0).round();
+    let ok: Vec<u32> = profiles.iter().flat_map(|p| p.rates_mhz).copied().collect();
+    if rate_hz.is_finite() && ok.iter().any(|&r| r as f64 == mhz) {
+        return Ok(mhz as u32);
+    }
+    let list: Vec<String> = ok
+        .iter()
+        .map(|r| format!("{}", *r as f64 / 1000.0))
+        .collect();
+    bail!(
+        "{flag} {rate_hz}: the sensor profile runs {} Hz only",
+        list.join(" or ")
+    )
+}
+
+/// Reads a model blob and checks it as the firmware does at boot (it parses, within the build's
+/// bounds, a rate and input unit the profile runs). A blob that fails is refused, or with
+/// `allow_bad` run anyway after a warning (the firmware then sends fault frames only).
+pub fn load_model(
+    tool: &str,
+    path: &Path,
+    profile: &Profile,
+    allow_bad: bool,
+) -> anyhow::Result<(AlignedBlob, Option<ModelConfig>)> {
+    let blob = load_blob(path)?;
+    match check_blob(profile, blob.as_bytes()) {
+        Ok(cfg) => Ok((blob, Some(cfg))),
+        Err(why) if allow_bad => {
+            eprintln!(
+                "{tool}: warning: {}: {why}; running anyway (--allow-bad-model): the firmware \
+                 sends fault frames only",
+                path.display()
+            );
+            Ok((blob, None))
+        }
+        Err(why) => bail!(
+            "{}: {why} (give a blob from `slipguard train` or `slipguard-export`, or \
+             --allow-bad-model to run it anyway)",
+            path.display()
+        ),
+    }
+}
