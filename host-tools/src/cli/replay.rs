@@ -265,24 +265,16 @@ fn run_one(
             );
         }
     }
-    // The model takes the profile's channels: a trial with more is refused (they would be
-    // dropped), one with fewer is padded with zero-force channels.
-    if trial.n_channels() > profile.channels {
+    // The model takes the profile's channels: a trial with more (they would be dropped) or
+    // fewer (they would be zero force) is refused.
+    if trial.n_channels() != profile.channels {
         bail!(
-            "{}: {} channels, the profile (the model's input) takes {}: record with the \
-             profile's channel count or pass --profile",
+            "{}: {} channels, the {} profile has {} (give --profile, or a trial with {} channels)",
             trial.id,
             trial.n_channels(),
-            profile.channels
-        );
-    }
-    if trial.n_channels() < profile.channels {
-        eprintln!(
-            "replay: {}: {} channels, the profile takes {}: channels {}.. replay as 0",
-            trial.id,
-            trial.n_channels(),
+            profile.name,
             profile.channels,
-            trial.n_channels()
+            profile.channels
         );
     }
     let (blob, _) = check::load_model("replay", &model, &profile, a.allow_bad_model)?;
