@@ -268,9 +268,15 @@ fn run_one(
     // The model takes the profile's channels: a trial with more (they would be dropped) or
     // fewer (they would be zero force) is refused.
     if trial.n_channels() != profile.channels {
+        // The file when one was given, the trial's id within a folder.
+        let name = if a.trial.is_file() {
+            a.trial.display().to_string()
+        } else {
+            trial.id.clone()
+        };
         bail!(
             "{}: {} channels, the {} profile has {} (give --profile, or a trial with {} channels)",
-            trial.id,
+            name,
             trial.n_channels(),
             profile.name,
             profile.channels,
