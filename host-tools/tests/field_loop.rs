@@ -191,7 +191,7 @@ fn replay_takes_a_folder_of_recordings_and_a_single_one() {
     assert!(!bad.status.success());
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(
-        err.contains("17 channels, the profile (the model's input) takes 16"),
+        err.contains("wide.csv: 17 channels, the hand profile has 16"),
         "{err}"
     );
     std::fs::remove_dir_all(&dir).ok();
