@@ -318,15 +318,7 @@ pub fn lstm_gate_sums<'o>(
     let done = arm::lstm_rows(w, stride, hh_offset, x, h, out);
     #[cfg(not(slipguard_dsp))]
     let done = false;
-    if !done {
-        for (r, o) in out.iter_mut().enumerate() {
-            o.write(gate_row(w, stride, hh_offset, x, h, r));
-        }
-    }
-    // SAFETY: every element of `out` has been written, by the kernel (see `arm::lstm_rows`:
-    // it returns true only after writing all of them) or by the loop above; `MaybeUninit<T>`
-    // has the layout of `T`, and the returned borrow keeps `out` (exclusively) borrowed.
-    unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i32; 2]>(), out.len()) }
+    finish_rows(out, done, |r| gate_row(w, stride, hh_offset, x, h, r))
 }
 
 /// Rows per block of the blocked LSTM weight layout ([`pack_lstm_blocks`]).
@@ -469,14 +461,25 @@ pub fn lstm_block_sums<'o>(
     let done = arm::lstm_blocks(wb, stride, hh_offset, x, h, out);
     #[cfg(not(slipguard_dsp))]
     let done = false;
+    finish_rows(out, done, |r| block_row(wb, stride, hh_offset, x, h, r))
+}
+
+/// The portable rows where the kernel did not run (`done` false: it writes all rows or none),
+/// then `out` as initialised sums.
+fn finish_rows(
+    out: &mut [core::mem::MaybeUninit<[i32; 2]>],
+    done: bool,
+    row: impl Fn(usize) -> [i32; 2],
+) -> &mut [[i32; 2]] {
     if !done {
         for (r, o) in out.iter_mut().enumerate() {
-            o.write(block_row(wb, stride, hh_offset, x, h, r));
+            o.write(row(r));
         }
     }
-    // SAFETY: every element of `out` has been written, by the kernel (see `arm::lstm_blocks`:
-    // it returns true only after writing all of them) or by the loop above; `MaybeUninit<T>`
-    // has the layout of `T`, and the returned borrow keeps `out` (exclusively) borrowed.
+    // SAFETY: every element of `out` has been written, by the kernel (`arm::lstm_blocks` and
+    // `arm::lstm_rows` return true only after writing all of them) or by the loop above;
+    // `MaybeUninit<T>` has the layout of `T`, and the returned borrow keeps `out` (exclusively)
+    // borrowed.
     unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i32; 2]>(), out.len()) }
 }
 
