@@ -22,6 +22,7 @@ use slipguard_app::frontend::Frontend;
 use slipguard_app::profile::Profile;
 use slipguard_core::decision::Q15;
 use slipguard_core::protocol::{self, Command, Deframer, Frame, MAX_WIRE, Message, status};
+use slipguard_core::sample::PAPER_RATE_MHZ;
 
 use slipguard_learn::evaluation::Sequence;
 pub use slipguard_sim::force::Contact;
@@ -694,7 +695,7 @@ pub struct TrainingConfig {
 impl Default for TrainingConfig {
     fn default() -> Self {
         TrainingConfig {
-            rate_mhz: 16_700,
+            rate_mhz: PAPER_RATE_MHZ,
             lead_s: 0.3,
             after_loss: 3,
             false_alarm_hz: 0.0,

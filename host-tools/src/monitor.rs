@@ -29,6 +29,7 @@ use slipguard_core::protocol::{
     Command, DecodeError, Deframer, Fault, Flags, Frame, Info, MAX_CHANNELS, Message, P_NONE,
     ReplyBody, Samples, StreamMode, mark, status,
 };
+use slipguard_core::sample::PAPER_RATE_MHZ;
 
 use slipguard_data::recording::{self, Appender, MAX_RATE_HZ, MAX_STEPS, MIN_RATE_HZ};
 use slipguard_data::trial::{Outcome, Phase, PhaseMarks, SensorKind, Stability, Trial, Unit};
@@ -353,7 +354,7 @@ impl Monitor {
     /// index and timestamp go in the metadata (`monitor_*`). `None` without flag frames.
     pub fn to_trial(&self, id: &str) -> Option<Trial> {
         let first = self.received.first()?;
-        let rate_mhz = self.rate_mhz().unwrap_or(16_700);
+        let rate_mhz = self.rate_mhz().unwrap_or(PAPER_RATE_MHZ);
         let n = self
             .received
             .iter()
@@ -687,7 +688,7 @@ impl Recorder {
     }
 
     fn meta(&self, samples: Vec<Vec<f32>>) -> Trial {
-        let rate = self.rate_mhz.unwrap_or(16_700);
+        let rate = self.rate_mhz.unwrap_or(PAPER_RATE_MHZ);
         let unit = if self.unit == 0 {
             Unit::MilliNewton
         } else {

@@ -59,7 +59,7 @@ impl<'a> Runner<'a> {
         };
         Ok(Self {
             plan,
-            layout: FeatureLayout::of(&config),
+            layout: config.feature_layout(),
             scale: InputScale::of(&config),
             decision: DecisionConfig::of(&config),
             features: FeatureState::new(),

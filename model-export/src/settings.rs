@@ -373,19 +373,11 @@ impl Settings {
 
 /// Parses a variant by letter (paper Fig. 5) or name.
 pub fn parse_variant(v: &str) -> Result<Variant> {
-    Ok(match v.trim() {
-        "a" | "(a)" | "lstm" | "force" => Variant::Force,
-        "b" | "(b)" | "stft-lstm" | "stft" => Variant::Stft,
-        "c" | "(c)" | "data-stft-lstm" | "force-stft" => Variant::ForceStft,
-        "d" | "(d)" | "lstm-stft-lstm" | "dual" => Variant::DualLstm,
-        other => {
-            return Err(ExportError::settings(
-                keys::VARIANT,
-                format!(
-                    "`{other}` is not one of a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm"
-                ),
-            ));
-        }
+    v.parse::<Variant>().map_err(|e| {
+        ExportError::settings(
+            keys::VARIANT,
+            format!("`{}` is not one of {}", v.trim(), e.expected),
+        )
     })
 }
 
@@ -436,7 +428,7 @@ mod tests {
         let r = Settings::defaults().resolve().unwrap();
         let c = r.config;
         assert_eq!(c.variant, Variant::ForceStft);
-        assert_eq!(c.sample_rate_mhz, 16_700);
+        assert_eq!(c.sample_rate_mhz, slipguard_core::sample::PAPER_RATE_MHZ);
         assert_eq!((c.input_offset, c.input_full_scale), (0, 10_000));
         assert_eq!(c.stft, StftConfig::PAPER);
         assert_eq!(c.threshold_q15, 16_384);

@@ -5,6 +5,7 @@
 
 use crate::decimate::{OUT_FRAC_BITS, RATIO};
 use slipguard_core::blob::InputUnit;
+use slipguard_core::sample::PAPER_RATE_MHZ;
 
 /// Profile id in the info reply.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -62,7 +63,7 @@ impl Profile {
         id: ProfileId::Hand,
         name: "hand",
         channels: 16,
-        rates_mhz: &[16_700, 40_000],
+        rates_mhz: &[PAPER_RATE_MHZ, 40_000],
         unit: InputUnit::MilliNewton,
         adc_max: 4095,
         zero_counts: 124,
@@ -100,7 +101,7 @@ impl Profile {
 
     /// Default model rate (before a model is loaded, or when it is bad).
     pub fn default_rate_mhz(&self) -> u32 {
-        self.rates_mhz.first().copied().unwrap_or(16_700)
+        self.rates_mhz.first().copied().unwrap_or(PAPER_RATE_MHZ)
     }
 
     /// Whether the model rate is one this profile runs.
@@ -154,7 +155,7 @@ mod tests {
         assert_eq!(p.to_model_units(139 << 4, 0), 150);
         assert_eq!(p.to_model_units(124 << 4, 0), 0);
         assert_eq!(p.to_model_units((124 << 4) - 1, 0), -1); // -0.625 rounds away from zero
-        assert!(p.check_rate(16_700) && p.check_rate(40_000) && !p.check_rate(71_000));
+        assert!(p.check_rate(PAPER_RATE_MHZ) && p.check_rate(40_000) && !p.check_rate(71_000));
         let s = Profile::SUCTION;
         assert_eq!(s.to_model_units(3000 << 4, 2000 << 4), 1000 << 4);
         assert!(s.check_rate(71_000));

@@ -76,18 +76,14 @@ const fn pairs(v: &[i16; ENTRIES]) -> [[i32; 2]; ENTRIES - 1] {
 /// the 7 position bits, plus half an output LSB for rounding) and the second a Q0.15 step.
 pub type IntervalTable = [[i32; 2]; ENTRIES - 1];
 
-/// σ intervals (see [`pairs`]); the static lives in [`crate::dsp`] (in RAM on the target).
+/// σ intervals (see [`pairs`]); the kernels read them from a static in [`crate::dsp`]
+/// (in RAM on the target, [`crate::dsp::interval_table`]).
 pub(crate) const SIGMOID_INTERVALS: IntervalTable = pairs(&SIGMOID_VALUES);
 /// tanh intervals (see [`pairs`]).
 pub(crate) const TANH_INTERVALS: IntervalTable = pairs(&TANH_VALUES);
 
-/// The interval table of tanh (`true`) or σ (`false`), for [`lookup`] and the assembly gate pass
-/// in [`crate::dsp`].
-pub fn table(tanh: bool) -> &'static IntervalTable {
-    crate::dsp::interval_table(tanh)
-}
-
-/// f(x) by the interval table of f: [`sigmoid`] or [`tanh`] for their tables.
+/// f(x) by the interval table of f ([`crate::dsp::sigmoid`] and [`crate::dsp::tanh`] with the
+/// kernels' tables).
 #[inline(always)]
 pub fn lookup(table: &IntervalTable, x: i16) -> i16 {
     interpolate(table, x)
@@ -107,21 +103,17 @@ fn interpolate(table: &IntervalTable, x: i16) -> i16 {
     ((a + d * frac) >> FRAC_BITS) as i16
 }
 
-/// σ(x): Q3.12 in, Q0.15 out (0..=32767).
-#[inline]
-pub fn sigmoid(x: i16) -> i16 {
-    interpolate(table(false), x)
-}
-
-/// tanh(x): Q3.12 in, Q0.15 out (-32768..=32767).
-#[inline]
-pub fn tanh(x: i16) -> i16 {
-    interpolate(table(true), x)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    // The const tables the kernels' statics are made from.
+    fn sigmoid(x: i16) -> i16 {
+        lookup(&SIGMOID_INTERVALS, x)
+    }
+    fn tanh(x: i16) -> i16 {
+        lookup(&TANH_INTERVALS, x)
+    }
 
     /// Every Q3.12 input against f64, independent of the tables' generator (std's exp/tanh).
     #[test]

@@ -11,6 +11,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
+use crate::features::FeatureLayout;
 use crate::features::stft::{StftConfig, StftError, WindowShape};
 use crate::{MAX_HIDDEN, MAX_INPUT};
 
@@ -79,6 +80,24 @@ impl Variant {
             Self::DualLstm => "lstm-stft-lstm",
         }
     }
+    /// The paper's letter for the variant (Fig. 5: (a) to (d)).
+    pub fn letter(self) -> char {
+        match self {
+            Self::Force => 'a',
+            Self::Stft => 'b',
+            Self::ForceStft => 'c',
+            Self::DualLstm => 'd',
+        }
+    }
+    /// Other names [`FromStr`](core::str::FromStr) accepts: the older exporter spellings.
+    fn alias(self) -> &'static str {
+        match self {
+            Self::Force => "force",
+            Self::Stft => "stft",
+            Self::ForceStft => "force-stft",
+            Self::DualLstm => "dual",
+        }
+    }
 }
 
 /// Unit of the raw samples the blob's input scaling expects.
@@ -121,14 +140,19 @@ impl core::fmt::Display for Variant {
 impl core::str::FromStr for Variant {
     type Err = UnknownName;
 
-    /// Parses [`Variant::name`].
+    /// Parses [`Variant::name`], the paper's letter (`c` or `(c)`) or the older alias.
     fn from_str(s: &str) -> Result<Self, UnknownName> {
+        let s = s.trim();
+        let letter = s
+            .strip_prefix('(')
+            .and_then(|s| s.strip_suffix(')'))
+            .unwrap_or(s);
         Self::ALL
             .into_iter()
-            .find(|v| v.name() == s.trim())
+            .find(|v| v.name() == s || v.alias() == s || letter.chars().eq([v.letter()]))
             .ok_or(UnknownName {
                 what: "variant",
-                expected: "lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm",
+                expected: "a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm",
             })
     }
 }
@@ -275,6 +299,14 @@ pub struct ModelConfig {
 }
 
 impl ModelConfig {
+    /// The features per step this header describes.
+    pub fn feature_layout(&self) -> FeatureLayout {
+        FeatureLayout {
+            force: self.variant.uses_force(),
+            diff: self.force_diff,
+            bands: self.band_features(),
+        }
+    }
     /// Number of force-path features (force and d(t)) feeding the first LSTM or the shared one.
     pub fn force_features(&self) -> usize {
         if self.variant.uses_force() {
@@ -371,36 +403,15 @@ pub mod dtype {
     pub const I32: u8 = 2;
 }
 
-/// Per-feature normalisation: `norm_q12 = sat16(round((x_q15 - mean_q15) · gain / 2^shift))`,
-/// i.e. (x - μ) / σ in Q3.12 with gain / 2^shift = 1 / (8σ) (σ in Q1.15 input units).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
-#[repr(C)]
-pub struct FeatureNorm {
-    /// μ, Q1.15 (an `i32` so that the subtraction cannot overflow).
-    pub mean_q15: i32,
-    /// Mantissa of 1 / (8σ).
-    pub gain: i32,
-    /// Exponent of 1 / (8σ), 1..=62.
-    pub shift: i32,
-}
+/// The feature-norm tensor's element (defined with the front end that applies it).
+pub use crate::features::FeatureNorm;
 
-/// Per-row requantisation of one LSTM gate row r:
-/// `z_q12 = sat16(round((acc_x·mx + acc_h·mh) / 2^shift) + bias_q12)` where
-/// `acc_x = Σ w_ih·x` (x Q3.12) and `acc_h = Σ w_hh·h` (h Q0.15).
-/// With per-row weight scales s_ih, s_hh: mx = s_ih·2^shift, mh = s_hh·2^(shift-3)
-/// (the 2^-3 aligns h's 15 fractional bits with x's 12).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
-#[repr(C)]
-pub struct LstmRowParams {
-    /// Input-weight multiplier.
-    pub mx: i32,
-    /// Recurrent-weight multiplier.
-    pub mh: i32,
-    /// b_ih + b_hh of the row, Q3.12 (an `i32`, added before saturation).
-    pub bias_q12: i32,
-    /// Shared exponent of mx and mh, 1..=62.
-    pub shift: i32,
-}
+/// Largest |bias_q12| of a folded row ([`crate::lstm::fold_row`]): with it the 64-bit sum's
+/// high word cannot overflow (see `lstm::requant_folded`).
+pub const FOLDED_ADDEND_MAX: i64 = 1 << 30;
+
+/// An LSTM row-parameter tensor's element (defined with the kernels that apply it).
+pub use crate::dsp::LstmRowParams;
 
 /// Per-row requantisation of one dense output: `logit_q12 = round(acc·m / 2^shift) + bias_q12`
 /// with `acc = Σ w·h` (h Q0.15) and m = s·2^(shift-3).
@@ -803,8 +814,7 @@ impl<'a> ModelBlob<'a> {
             // A RAM image's rows are folded (`lstm::fold_row`): d in 1..=30, |C| ≤ 2^30.
             let bad = |r: &LstmRowParams| {
                 if image {
-                    !(1..=30).contains(&r.shift)
-                        || (r.bias_q12 as i64).abs() > crate::lstm::FOLDED_ADDEND_MAX
+                    !(1..=30).contains(&r.shift) || (r.bias_q12 as i64).abs() > FOLDED_ADDEND_MAX
                 } else {
                     !(1..=62).contains(&r.shift)
                 }

@@ -1,8 +1,8 @@
 //! Decision: dense layer to two logits, p(unstable) in Q0.15, and the flag with hysteresis.
 
-use crate::activation::sigmoid;
 use crate::blob::{DenseTensors, ModelConfig};
 use crate::dsp::dot_i8_i16_fast;
+use crate::dsp::sigmoid;
 use crate::fixed::{round_shift_i64, sat_i16_wide};
 
 /// p(unstable) = softmax(logits)[1] = σ(l1 - l0), Q0.15, from the concatenated hidden states

@@ -41,10 +41,29 @@
 
 #![allow(unsafe_code)]
 
-use crate::activation::IntervalTable;
-use crate::blob::LstmRowParams;
+use bytemuck::{Pod, Zeroable};
 
-/// σ's interval table ([`crate::activation::table`]). On the bare-metal target it is placed in
+use crate::activation::IntervalTable;
+
+/// Per-row requantisation of one LSTM gate row r:
+/// `z_q12 = sat16(round((acc_x·mx + acc_h·mh) / 2^shift) + bias_q12)` where
+/// `acc_x = Σ w_ih·x` (x Q3.12) and `acc_h = Σ w_hh·h` (h Q0.15).
+/// With per-row weight scales s_ih, s_hh: mx = s_ih·2^shift, mh = s_hh·2^(shift-3)
+/// (the 2^-3 aligns h's 15 fractional bits with x's 12).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+#[repr(C)]
+pub struct LstmRowParams {
+    /// Input-weight multiplier.
+    pub mx: i32,
+    /// Recurrent-weight multiplier.
+    pub mh: i32,
+    /// b_ih + b_hh of the row, Q3.12 (an `i32`, added before saturation).
+    pub bias_q12: i32,
+    /// Shared exponent of mx and mh, 1..=62.
+    pub shift: i32,
+}
+
+/// σ's interval table ([`interval_table`]). On the bare-metal target it is placed in
 /// `.data`, copied to SRAM by the runtime at boot: the gate pass reads it 384 times per channel
 /// step (rows i, f, o), and from flash nearly every read would miss the ART accelerator's 8
 /// data lines (5 wait states). 4 KiB of RAM; tanh's table (256 reads per step: rows g and the
@@ -59,9 +78,22 @@ static SIGMOID_TABLE: IntervalTable = crate::activation::SIGMOID_INTERVALS;
 /// tanh's interval table (flash on the target, see [`SIGMOID_TABLE`]).
 static TANH_TABLE: IntervalTable = crate::activation::TANH_INTERVALS;
 
-/// The interval table of tanh (`true`) or σ (`false`) (see [`SIGMOID_TABLE`]).
-pub(crate) fn interval_table(tanh: bool) -> &'static IntervalTable {
+/// The interval table of tanh (`true`) or σ (`false`) (see [`SIGMOID_TABLE`]), for
+/// [`crate::activation::lookup`] and the assembly gate pass.
+pub fn interval_table(tanh: bool) -> &'static IntervalTable {
     if tanh { &TANH_TABLE } else { &SIGMOID_TABLE }
+}
+
+/// σ(x): Q3.12 in, Q0.15 out (0..=32767), by its interval table.
+#[inline]
+pub fn sigmoid(x: i16) -> i16 {
+    crate::activation::lookup(interval_table(false), x)
+}
+
+/// tanh(x): Q3.12 in, Q0.15 out (-32768..=32767), by its interval table.
+#[inline]
+pub fn tanh(x: i16) -> i16 {
+    crate::activation::lookup(interval_table(true), x)
 }
 
 /// ⌊√n⌋, the number `u32::isqrt` gives (the STFT magnitude's square root). On a Cortex-M4F

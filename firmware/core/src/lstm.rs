@@ -15,12 +15,13 @@
 //! requantisation ([`LstmRowParams`]). All rounding is to nearest, so the host and the
 //! Cortex-M4 compute the same bits.
 
-use crate::activation::{self, sigmoid, tanh};
+use crate::activation;
 use crate::blob::{LstmRowParams, LstmTensors};
 use crate::dsp::{
     CellParams, lstm_block_sums, lstm_cell_update, lstm_gate_rows, lstm_gate_rows_folded,
     lstm_gate_sums, permute_q15_uninit,
 };
+use crate::dsp::{interval_table, sigmoid, tanh};
 use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
 use crate::{MAX_HIDDEN, MAX_INPUT};
 use core::mem::MaybeUninit;
@@ -82,9 +83,7 @@ fn requant(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
     }
 }
 
-/// Largest |bias_q12| of a folded row ([`fold_row`]): with it the 64-bit sum's high word
-/// cannot overflow (see [`requant_folded`]).
-pub const FOLDED_ADDEND_MAX: i64 = 1 << 30;
+pub use crate::blob::FOLDED_ADDEND_MAX;
 
 /// A row's parameters in the *folded* form of a RAM image ([`crate::model_ram`]), or `None` if
 /// the row has none (a shift outside 33..=62, or an addend over [`FOLDED_ADDEND_MAX`]): mx and mh
@@ -277,7 +276,7 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
 /// `gates[g·hn + j][0]` (gate order i, f, g, o; the low 16 bits count): in assembly
 /// ([`crate::dsp::lstm_cell_update`]) where it runs, else [`cell_update_portable`].
 pub fn cell_update(gates: &[[i32; 2]], hn: usize, state: &mut LstmState, k: CellShifts) {
-    let table = activation::table(true);
+    let table = interval_table(true);
     if !lstm_cell_update(gates, hn, &mut state.h, &mut state.c, k.kernel(), table) {
         cell_update_portable(gates, hn, state, k);
     }
@@ -300,7 +299,7 @@ pub fn cell_update_portable(gates: &[[i32; 2]], hn: usize, state: &mut LstmState
 /// ([`crate::dsp::lstm_gate_rows`]) where it can; the rows it leaves (a requantisation shift
 /// outside 33..=62, or every row on other targets) are done here, one at a time.
 pub fn gate_activations(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
-    let table = activation::table(tanh);
+    let table = interval_table(tanh);
     let mut r = 0;
     loop {
         let (a, q) = (
@@ -321,14 +320,14 @@ pub fn gate_activations(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
 /// it runs, else [`gate_activations_folded_portable`]. Rows not in the folded form (d outside
 /// 1..=30, |C| over [`FOLDED_ADDEND_MAX`]) give unspecified activations.
 pub fn gate_activations_folded(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
-    if !lstm_gate_rows_folded(acc, p, activation::table(tanh)) {
+    if !lstm_gate_rows_folded(acc, p, interval_table(tanh)) {
         gate_activations_folded_portable(acc, p, tanh);
     }
 }
 
 /// The reference of [`gate_activations_folded`], all in Rust.
 pub fn gate_activations_folded_portable(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
-    let f = if tanh { activation::tanh } else { sigmoid };
+    let f = if tanh { self::tanh } else { sigmoid };
     for (a, p) in acc.iter_mut().zip(p) {
         a[0] = f(requant_folded(p, a[0], a[1])) as i32;
     }
@@ -336,7 +335,7 @@ pub fn gate_activations_folded_portable(acc: &mut [[i32; 2]], p: &[LstmRowParams
 
 /// The reference of [`gate_activations`], all in Rust.
 pub fn gate_activations_portable(acc: &mut [[i32; 2]], p: &[LstmRowParams], tanh: bool) {
-    let f = if tanh { activation::tanh } else { sigmoid };
+    let f = if tanh { self::tanh } else { sigmoid };
     for (a, p) in acc.iter_mut().zip(p) {
         a[0] = f(requant(p, a[0], a[1])) as i32;
     }

@@ -97,7 +97,7 @@ impl<'a> Model<'a> {
         Ok(Self {
             blob,
             plan,
-            layout: FeatureLayout::of(&config),
+            layout: config.feature_layout(),
             scale: InputScale::of(&config),
             decision: DecisionConfig::of(&config),
         })

@@ -24,10 +24,40 @@ fn names_round_trip_and_unknown_names_say_what_is_accepted() {
     let e = "gru".parse::<Variant>().unwrap_err();
     assert_eq!(
         e.to_string(),
-        "unknown variant (expected lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm)"
+        "unknown variant (expected a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm)"
     );
+    for bad in ["", "e", "(c", "cc", "()", "LSTM"] {
+        assert!(bad.parse::<Variant>().is_err(), "`{bad}` parsed");
+    }
     assert!("newton".parse::<InputUnit>().is_err());
     assert!("hamming".parse::<WindowShape>().is_err());
+}
+
+#[test]
+fn variants_parse_from_the_papers_letters_and_the_older_aliases() {
+    let accepted = [
+        (Variant::Force, ["a", "(a)", "lstm", "force"]),
+        (Variant::Stft, ["b", "(b)", "stft-lstm", "stft"]),
+        (
+            Variant::ForceStft,
+            ["c", " (c) ", "data-stft-lstm", "force-stft"],
+        ),
+        (Variant::DualLstm, ["d", "(d)", "lstm-stft-lstm", "dual"]),
+    ];
+    for (v, names) in accepted {
+        for n in names {
+            assert_eq!(n.parse::<Variant>(), Ok(v), "`{n}`");
+        }
+    }
+}
+
+#[test]
+fn paper_rate_is_the_papers_16_7_hz() {
+    use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
+    // The paper's Fig. 8 caption: "data frequency at 16.7 Hz" (one step every 60 ms).
+    assert_eq!(PAPER_RATE_MHZ, 16_700);
+    assert_eq!(PAPER_RATE_HZ, 16.7);
+    assert!((1.0 / 0.06 - f64::from(PAPER_RATE_HZ)).abs() < 0.05);
 }
 
 #[test]

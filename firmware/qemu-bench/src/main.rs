@@ -30,6 +30,7 @@ use slipguard_core::features::stft::{StftConfig, StftPlan, StftState};
 use slipguard_core::lstm::{self, LstmState};
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::model_ram::{MODEL_RAM_BYTES, ModelRam};
+use slipguard_core::sample::PAPER_RATE_HZ;
 
 /// The blob must be 4-byte aligned to be read in place, as in the firmware's flash section.
 #[repr(C, align(4))]
@@ -778,9 +779,10 @@ fn main() -> ! {
     );
     // Instructions only; `scripts/qemu-bench.sh` adds the cycle plugin's estimate per span.
     hprintln!(
-        "summary: 16-channel frame {} insns; at 168 MHz, 1 insn/cycle: 16.7 Hz -> {:.2} % CPU, 40 Hz -> {:.2} % CPU",
+        "summary: 16-channel frame {} insns; at 168 MHz, 1 insn/cycle: {} Hz -> {:.2} % CPU, 40 Hz -> {:.2} % CPU",
         frame,
-        frame as f32 * 16.7 / 168e6 * 100.0,
+        PAPER_RATE_HZ,
+        frame as f32 * PAPER_RATE_HZ / 168e6 * 100.0,
         frame as f32 * 40.0 / 168e6 * 100.0
     );
     hprintln!(

@@ -16,8 +16,10 @@ use crate::error::{DataError, Result};
 use crate::labels::{LabelConfig, annotate};
 use crate::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
 
-/// The dataset's sample rate: 16.7 Hz (60 ms a step).
-pub const EAGLE_RATE_HZ: f32 = 16.7;
+/// The dataset's sample rate: the paper's (60 ms a step, stated as 16.7 Hz).
+pub const EAGLE_RATE_HZ: f32 = slipguard_core::sample::PAPER_RATE_HZ;
+/// [`EAGLE_RATE_HZ`] in mHz, the blob header's unit.
+pub const EAGLE_RATE_MHZ: u32 = slipguard_core::sample::PAPER_RATE_MHZ;
 
 #[derive(Debug, Deserialize)]
 struct Meta {

@@ -76,7 +76,7 @@ impl LabelConfig {
     /// *durations* at another rate (lead 1.2 s, sequence 9.58 s, hold 0.6 s,
     /// contact run 0.18 s).
     pub fn scaled_to(&self, rate_hz: f32) -> Self {
-        let k = rate_hz / 16.7;
+        let k = rate_hz / crate::eagle::EAGLE_RATE_HZ;
         let sc = |s: usize| ((s as f32 * k).round() as usize).max(1);
         LabelConfig {
             unstable_lead_steps: sc(self.unstable_lead_steps),

@@ -25,6 +25,10 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::{adc, normal, trial_rng, uniform};
+
+/// The paper's (and the real trials') rate in f64, the simulator's time base.
+pub const PAPER_RATE_HZ: f64 = EAGLE_RATE_MHZ as f64 / 1000.0;
+use slipguard_data::eagle::EAGLE_RATE_MHZ;
 use slipguard_data::labels::{LabelConfig, label_annotated};
 use slipguard_data::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
 
@@ -78,8 +82,8 @@ pub struct ForceSimConfig {
 impl Default for ForceSimConfig {
     fn default() -> Self {
         ForceSimConfig {
-            rate_hz: 16.7,
-            duration_s: 400.0 / 16.7,
+            rate_hz: PAPER_RATE_HZ,
+            duration_s: 400.0 / PAPER_RATE_HZ,
             n_channels: 16,
             full_scale_mn: 33_000.0,
             adc_bits: 12,
@@ -200,7 +204,7 @@ impl ForceParams {
             Intent::Drop => 50.0,
             Intent::Hold => [16.0, 33.0, 50.0][rng.random_range(0..3)],
         };
-        let t_open_mark = t_lift + open_steps / 16.7;
+        let t_open_mark = t_lift + open_steps / PAPER_RATE_HZ;
         let t_release = t_lift + uniform(rng, 6.9, 8.5);
         let redistribution = (rng.random_bool(cfg.redistribution_prob) && contacts.len() >= 2)
             .then(|| {

@@ -9,6 +9,7 @@ use anyhow::Context;
 use slipguard::plot::plot_prediction;
 use slipguard_core::blob::AlignedBlob;
 use slipguard_core::model::Model;
+use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
 use slipguard_learn::evaluation::{
     Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, quant_p_q15, row_markdown,
     sim_force_sequences, sim_suction_sequences,
@@ -107,7 +108,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         false,
         1,
         "",
-        16_700,
+        PAPER_RATE_MHZ,
     ));
     let real = slipguard_learn::product::cut_to_contact(
         slipguard_learn::evaluation::sequences_of(
@@ -134,7 +135,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         plots,
     )?);
     let sf = slipguard_learn::product::cut_to_contact(
-        sim_force_sequences(a.sim_seed, a.sim_count, 0.3, 16.7),
+        sim_force_sequences(a.sim_seed, a.sim_count, 0.3, PAPER_RATE_HZ),
         &rule,
     );
     rows.push(run_blob(

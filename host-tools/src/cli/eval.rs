@@ -6,6 +6,7 @@ use anyhow::Context;
 use slipguard::plot::plot_prediction;
 use slipguard_core::blob::InputUnit;
 use slipguard_core::decision::{DecisionConfig, Q15};
+use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
 use slipguard_learn::checkpoint::{self, Checkpoint};
 use slipguard_learn::evaluation::{
     Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, probabilities, quantize_model,
@@ -332,7 +333,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         false,
         1,
         "",
-        16_700,
+        PAPER_RATE_MHZ,
     ));
     let real = product::cut_to_contact(
         sequences_of(&real_trials, &LabelConfig::default()),
@@ -347,7 +348,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let sim_f = if needs(InputUnit::MilliNewton) {
         product::cut_to_contact(
-            sim_force_sequences(a.sim_seed, a.sim_force, 0.3, 16.7),
+            sim_force_sequences(a.sim_seed, a.sim_force, 0.3, PAPER_RATE_HZ),
             &force_rule,
         )
     } else {

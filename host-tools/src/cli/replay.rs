@@ -12,6 +12,7 @@ use super::check;
 use slipguard_app::profile::Profile;
 use slipguard_app::replay::OpenWire;
 use slipguard_core::protocol::{Command, Message};
+use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
 use slipguard_data::eagle::read_tactile_csv;
 use slipguard_data::labels::{LabelConfig, annotate};
 use slipguard_data::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
@@ -53,7 +54,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = ProfileArg::Auto)]
     pub profile: ProfileArg,
     /// Rate of a plain tactile.csv, Hz (> 0).
-    #[arg(long, default_value_t = 16.7, value_parser = check::positive_f32)]
+    #[arg(long, default_value_t = PAPER_RATE_HZ, value_parser = check::positive_f32)]
     pub rate: f32,
     /// Commands sent to the firmware during the replay.
     #[arg(long, value_enum, default_value_t = Script::None)]
@@ -185,7 +186,7 @@ pub fn in_sample_note(model: &Path, trial_path: &Path, trial: &Trial) -> Option<
         .extra
         .get("heldout_trials")
         .is_some_and(|h| h.split(',').any(|id| id == trial.id));
-    let trained_on_real = ck.model.config.sample_rate_mhz == 16_700
+    let trained_on_real = ck.model.config.sample_rate_mhz == PAPER_RATE_MHZ
         && ck.extra.get("val_trials").is_some_and(|v| !v.is_empty());
     (trained_on_real && !held_out).then(|| {
         format!(

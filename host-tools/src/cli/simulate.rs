@@ -10,6 +10,7 @@ use slipguard::plot;
 use slipguard_data::labels::LabelConfig;
 use slipguard_data::{Outcome, Trial, eagle, load_path, recording};
 use slipguard_sim::dsp;
+use slipguard_sim::force::PAPER_RATE_HZ;
 use slipguard_sim::force::{self, ForceSimConfig, Intent};
 use slipguard_sim::suction::{self, SuctionSimConfig};
 use slipguard_sim::validate::{self, TrialStats};
@@ -30,7 +31,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = Sensor::Force)]
     pub sensor: Sensor,
     /// Sample rate for force trials (16.7 as the dataset, 40 as the DoraHand).
-    #[arg(long, default_value_t = 16.7)]
+    #[arg(long, default_value_t = PAPER_RATE_HZ)]
     pub rate: f64,
     /// Number of trials (default 10; 100 with --validate).
     #[arg(long, value_parser = super::check::usize_in!(1..=1_000_000))]
@@ -169,7 +170,7 @@ fn validate_cmd(a: &Args) -> anyhow::Result<()> {
         .collect();
     if real.is_empty() {
         bail!(
-            "no real 16.7 Hz trials with contact under {}",
+            "no real {PAPER_RATE_HZ} Hz trials with contact under {}",
             data.display()
         );
     }
@@ -217,7 +218,7 @@ fn validate_cmd(a: &Args) -> anyhow::Result<()> {
     let (rh, rhn) = spec(&rs, false);
     let (sh, shn) = spec(&ss, false);
     let freqs: Vec<f64> = (0..=validate::SPECTRUM_WIN / 2)
-        .map(|k| dsp::bin_hz(k, validate::SPECTRUM_WIN, 16.7))
+        .map(|k| dsp::bin_hz(k, validate::SPECTRUM_WIN, PAPER_RATE_HZ))
         .collect();
     let mut series = Vec::new();
     let colours = [
@@ -317,7 +318,7 @@ fn validate_cmd(a: &Args) -> anyhow::Result<()> {
     // Report.
     let band = |s: &Option<Vec<f64>>| {
         s.as_ref().map_or("n/a".into(), |s| {
-            format!("{:.1}%", 100.0 * validate::band_3_5(s, 16.7))
+            format!("{:.1}%", 100.0 * validate::band_3_5(s, PAPER_RATE_HZ))
         })
     };
     let n_fail_real = real
@@ -355,7 +356,7 @@ fn validate_cmd(a: &Args) -> anyhow::Result<()> {
     );
     let _ = writeln!(
         r,
-        "- Simulated: {count} force trials at 16.7 Hz, seed {}, {} ended in a drop ({} success).",
+        "- Simulated: {count} force trials at {PAPER_RATE_HZ} Hz, seed {}, {} ended in a drop ({} success).",
         a.seed,
         n_fail_sim,
         count - n_fail_sim

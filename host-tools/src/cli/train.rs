@@ -8,6 +8,7 @@ use slipguard::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequ
 use slipguard_core::blob::Variant;
 use slipguard_core::decision::{ContactConfig, DecisionConfig, Q15};
 use slipguard_core::float::FloatModel;
+use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
 use slipguard_data::labels::{ChannelSequence, LabelConfig};
 use slipguard_data::{Trial, eagle, load_path};
 use slipguard_learn::checkpoint::{self, Checkpoint};
@@ -104,7 +105,7 @@ pub struct Args {
     pub closed_loop_seed: u64,
     /// Model frame rate (Hz) of the force sensor: 16.7 (the paper's, real trials) or 40 (the
     /// hand profile's fast rate, for closed-loop use; simulated trials only).
-    #[arg(long, default_value_t = 16.7, value_parser = check::positive_f32)]
+    #[arg(long, default_value_t = PAPER_RATE_HZ, value_parser = check::positive_f32)]
     pub rate_hz: f32,
     /// Closed-loop training labels: unstable when the object slips within this many seconds.
     #[arg(long, default_value_t = 0.3, value_parser = check::non_negative)]
@@ -402,7 +403,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let mut real_trials: Vec<Trial> = Vec::new();
     let (real, sim_pre, sim_mix) = match a.sensor {
         Sensor::Force => {
-            let real = if cl_cfg.rate_mhz == 16_700 {
+            let real = if cl_cfg.rate_mhz == PAPER_RATE_MHZ {
                 let (path, trials) = load_real_trials(a.path.as_deref())?;
                 let real = sequences_of(&trials, &LabelConfig::default());
                 real_trials = trials;
@@ -416,10 +417,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             } else {
                 anyhow::ensure!(
                     cl_cfg.rate_mhz == 40_000,
-                    "--rate-hz: the hand profile runs 16.7 or 40 Hz"
+                    "--rate-hz: the hand profile runs {PAPER_RATE_HZ} or 40 Hz"
                 );
-                anyhow::ensure!(a.cv == 0, "--cv needs real trials, which are 16.7 Hz only");
-                eprintln!("40 Hz: simulated trials only (the real trials are 16.7 Hz)");
+                anyhow::ensure!(
+                    a.cv == 0,
+                    "--cv needs real trials, which are {PAPER_RATE_HZ} Hz only"
+                );
+                eprintln!("40 Hz: simulated trials only (the real trials are {PAPER_RATE_HZ} Hz)");
                 Vec::new()
             };
             let mut pre =

@@ -13,8 +13,8 @@
 pub mod stft;
 
 use crate::MAX_INPUT;
-use crate::blob::{FeatureNorm, ModelConfig};
 use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
+use bytemuck::{Pod, Zeroable};
 use stft::{StftPlan, StftState};
 
 /// Most STFT bands a model may use.
@@ -32,14 +32,6 @@ pub struct FeatureLayout {
 }
 
 impl FeatureLayout {
-    /// The layout a model's header describes.
-    pub fn of(config: &ModelConfig) -> Self {
-        Self {
-            force: config.variant.uses_force(),
-            diff: config.force_diff,
-            bands: config.band_features(),
-        }
-    }
     /// Features per step.
     pub fn len(&self) -> usize {
         self.force as usize + self.diff as usize + self.bands
@@ -104,6 +96,19 @@ pub fn raw_features(
         let end = (n + layout.bands).min(MAX_INPUT);
         plan.step(&mut state.stft, x_q15, &mut raw[n..end]);
     }
+}
+
+/// Per-feature normalisation: `norm_q12 = sat16(round((x_q15 - mean_q15) · gain / 2^shift))`,
+/// i.e. (x - μ) / σ in Q3.12 with gain / 2^shift = 1 / (8σ) (σ in Q1.15 input units).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+#[repr(C)]
+pub struct FeatureNorm {
+    /// μ, Q1.15 (an `i32` so that the subtraction cannot overflow).
+    pub mean_q15: i32,
+    /// Mantissa of 1 / (8σ).
+    pub gain: i32,
+    /// Exponent of 1 / (8σ), 1..=62.
+    pub shift: i32,
 }
 
 /// Normalises features in place: Q1.15 → Q3.12 `(v - μ) / σ`, saturated.
