@@ -14,7 +14,8 @@
 //! [`blob`] parses the model blob (format v1, `docs/model-format.md`) zero-copy from flash and
 //! [`model`] ties the stages together over a per-channel [`model::ChannelState`].
 //! Behind the `std` feature, [`float`] is the f32 reference of exactly the same network and
-//! [`quantize`] turns float weights into a blob.
+//! [`quantize`] turns float weights into a blob, and [`batch`] steps many channels at once
+//! (bit-exact with [`model::Model::step`]) for the host tools.
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
@@ -23,6 +24,8 @@
 compile_error!("slipguard-core reads model blobs in place and supports little-endian targets only");
 
 pub mod activation;
+#[cfg(feature = "std")]
+pub mod batch;
 pub mod blob;
 pub mod const_math;
 pub mod decision;

@@ -1,0 +1,592 @@
+//! Many channels at once (host only, `std`): the bit-exact model of [`Model::step`] over a
+//! batch of channels stepped together, for evaluation, calibration and replay at dataset scale.
+//!
+//! Per step the single path does, for each channel, one matrix-vector product per LSTM
+//! (4H rows × (I + H) int8 weights × int16 activations); here one [`BatchModel::step`] does the
+//! same products for every lane (channel) of a [`BatchState`] as one matrix product,
+//! `gates[4H × lanes] = W[4H × K] · X[K × lanes]` ([`crate::dsp::batch_pair_sums`]), so each
+//! weight, loaded once, meets 16 lanes. The layout is structure of arrays: a lane's h is
+//! spread over `h[pair][lane]` words (two units per word, the kernel's i16 pairs), c over
+//! `c[unit][lane]`; the weights are widened to i16 pairs and laid out per row at construction.
+//!
+//! Bit-exact by construction, not by tolerance: the sums are exact integer sums (no partial
+//! sum can overflow, see [`crate::dsp::batch_pair_sums`]), so the summation order does not
+//! change them, and everything after the sums is the single path's own code, lane by lane:
+//! the front end ([`raw_features`], [`normalise`]), the row requantisation and the table
+//! activations, the cell update and the decision (the test `batch_vs_single` checks every
+//! variant, with and without d(t), against [`Model::step`] and [`Model::step_in_contact`]).
+//!
+//! Lanes are processed [`CHUNK_LANES`] at a time (the chunk's sums stay in L2); the lane count
+//! is padded to whole [`BATCH_TILE_LANES`] tiles, the padding lanes computed and never read.
+
+use core::fmt;
+
+use crate::MAX_INPUT;
+use crate::activation::{self, sigmoid};
+use crate::blob::{DenseRowParams, LstmRowParams, LstmTensors, pad4};
+use crate::decision::{ContactConfig, ContactEdge, ContactState, DecisionConfig, DecisionState};
+use crate::dsp::{BATCH_TILE_LANES, BATCH_TILE_ROWS, batch_pair_sums};
+use crate::features::stft::StftPlan;
+use crate::features::{FeatureLayout, FeatureState, normalise, raw_features};
+use crate::fixed::{round_shift_i64, sat_i16_wide};
+use crate::lstm::{CellShifts, LstmState, cell_unit, requant};
+use crate::model::{ChannelState, GatedOutput, Model, StepOutput};
+
+/// Lanes per pass of a step: the chunk's gate sums (2 × 4H × 64 `i32`, 128 KiB for H = 128)
+/// stay in L2 while the weights (143 KiB as i16 pairs for variant (c), H = 128) are reused
+/// across the chunk. A multiple of [`BATCH_TILE_LANES`].
+pub const CHUNK_LANES: usize = 64;
+
+const _: () = assert!(CHUNK_LANES.is_multiple_of(BATCH_TILE_LANES));
+
+/// Why a model cannot run batched.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum BatchError {
+    /// The model is a RAM image (blocked weights, folded rows): batch the blob it came from.
+    RamImage,
+    /// An LSTM's tensors do not have 4H rows of weights and parameters.
+    Shape,
+}
+
+impl fmt::Display for BatchError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BatchError::RamImage => {
+                f.write_str("the batched path takes a model blob, not a RAM image (SGMI)")
+            }
+            BatchError::Shape => {
+                f.write_str("an LSTM's weights or row parameters are not 4 x hidden rows")
+            }
+        }
+    }
+}
+
+impl core::error::Error for BatchError {}
+
+/// Two i16 values as one word, `lo | hi << 16` (the pair kernels' operand).
+#[inline(always)]
+fn pair(lo: i16, hi: i16) -> u32 {
+    lo as u16 as u32 | (hi as u16 as u32) << 16
+}
+
+/// One LSTM in the batch layout.
+#[derive(Clone, Debug)]
+struct PackedLstm {
+    /// Index of its first feature in the model's feature vector.
+    first: usize,
+    /// Features it takes (I, or fewer if the feature vector is shorter: the rest count 0).
+    take: usize,
+    /// H.
+    hidden: usize,
+    /// Input pairs ⌈I / 2⌉ and hidden pairs ⌈H / 2⌉.
+    px: usize,
+    ph: usize,
+    /// W_ih and W_hh as i16 pairs: `wx[r·px + p]`, `wh[r·ph + p]`, 4H rows.
+    wx: Vec<u32>,
+    wh: Vec<u32>,
+    /// Row requantisation, 4H rows (the blob's).
+    rows: Vec<LstmRowParams>,
+    shifts: CellShifts,
+    /// The dense layer's weights on this LSTM's h, as pairs: 2 class rows padded with zero
+    /// rows to [`BATCH_TILE_ROWS`], `dense[c·ph + p]`.
+    dense: Vec<u32>,
+}
+
+impl PackedLstm {
+    fn new(
+        t: &LstmTensors<'_>,
+        first: usize,
+        take: usize,
+        dense_w: &[i8],
+        dense_row_len: usize,
+        dense_off: usize,
+    ) -> Result<Self, BatchError> {
+        if t.blocked {
+            return Err(BatchError::RamImage);
+        }
+        let hidden = t.hidden.min(crate::MAX_HIDDEN);
+        let take = take.min(t.inputs);
+        let (px, ph) = (t.inputs.div_ceil(2), hidden.div_ceil(2));
+        let rows = 4 * hidden;
+        let stride = t.row_len;
+        if t.rows.len() < rows || t.weights.len() < rows * stride || t.hh_offset + hidden > stride {
+            return Err(BatchError::Shape);
+        }
+        let at = |r: usize, off: usize, k: usize, n: usize| -> i16 {
+            if k < n {
+                t.weights[r * stride + off + k] as i16
+            } else {
+                0
+            }
+        };
+        let mut wx = Vec::with_capacity(rows * px);
+        let mut wh = Vec::with_capacity(rows * ph);
+        for r in 0..rows {
+            wx.extend((0..px).map(|p| pair(at(r, 0, 2 * p, take), at(r, 0, 2 * p + 1, take))));
+            let off = t.hh_offset;
+            wh.extend(
+                (0..ph).map(|p| pair(at(r, off, 2 * p, hidden), at(r, off, 2 * p + 1, hidden))),
+            );
+        }
+        // decision::p_unstable: this LSTM's slice of each class row starts at `dense_off`.
+        let mut dense = vec![0u32; BATCH_TILE_ROWS * ph];
+        for c in 0..2 {
+            let row = dense_w
+                .get(c * dense_row_len..(c + 1) * dense_row_len)
+                .and_then(|r| r.get(dense_off..))
+                .unwrap_or(&[]);
+            let w = |k: usize| {
+                if k < hidden {
+                    row.get(k).map_or(0, |&v| v as i16)
+                } else {
+                    0
+                }
+            };
+            for p in 0..ph {
+                dense[c * ph + p] = pair(w(2 * p), w(2 * p + 1));
+            }
+        }
+        Ok(Self {
+            first,
+            take,
+            hidden,
+            px,
+            ph,
+            wx,
+            wh,
+            rows: t.rows[..rows].to_vec(),
+            shifts: CellShifts::new(t.cell_frac_bits),
+            dense,
+        })
+    }
+}
+
+/// A model prepared for many channels at once: the [`Model`] plus its weights in the batch
+/// layout (built once; about 2 × the blob's LSTM bytes).
+#[derive(Clone, Debug)]
+pub struct BatchModel<'a> {
+    model: Model<'a>,
+    plan: Option<StftPlan>,
+    layout: FeatureLayout,
+    decision: DecisionConfig,
+    lstms: Vec<PackedLstm>,
+    dense_rows: [DenseRowParams; 2],
+}
+
+impl<'a> BatchModel<'a> {
+    /// Lays out `model`'s weights for the batch (the decision settings are `model`'s).
+    pub fn new(model: &Model<'a>) -> Result<Self, BatchError> {
+        let blob = model.blob();
+        let config = blob.config;
+        let layout = FeatureLayout::of(&config);
+        let plan = if config.variant.uses_bands() {
+            StftPlan::new(config.stft).ok()
+        } else {
+            None
+        };
+        let n = layout.len().min(MAX_INPUT);
+        let dense = &blob.dense;
+        let mut lstms = Vec::new();
+        // The same split of the feature vector as `Model::p_unstable`.
+        let (mut first, mut dense_off) = (0, 0);
+        let count = blob.lstms().len();
+        for (k, t) in blob.lstms().iter().enumerate() {
+            let take = if count == 2 && k == 0 {
+                t.inputs.min(n)
+            } else {
+                n - first
+            };
+            lstms.push(PackedLstm::new(
+                t,
+                first,
+                take,
+                dense.weights,
+                dense.row_len,
+                dense_off,
+            )?);
+            first += take;
+            dense_off += pad4(t.hidden);
+        }
+        let dense_rows = [
+            dense.rows.first().copied().ok_or(BatchError::Shape)?,
+            dense.rows.get(1).copied().ok_or(BatchError::Shape)?,
+        ];
+        Ok(Self {
+            model: model.clone(),
+            plan,
+            layout,
+            decision: model.decision(),
+            lstms,
+            dense_rows,
+        })
+    }
+
+    /// The single-channel model this batches.
+    pub fn model(&self) -> &Model<'a> {
+        &self.model
+    }
+
+    /// The decision settings in force.
+    pub fn decision(&self) -> DecisionConfig {
+        self.decision
+    }
+
+    /// Replaces the decision settings (as [`Model::set_decision`]).
+    pub fn set_decision(&mut self, decision: DecisionConfig) {
+        self.decision = decision;
+    }
+
+    /// A state of `lanes` channels, all as after reset.
+    pub fn state(&self, lanes: usize) -> BatchState {
+        let stride = lanes.div_ceil(BATCH_TILE_LANES) * BATCH_TILE_LANES;
+        let lstm = self
+            .lstms
+            .iter()
+            .map(|l| LaneLstm {
+                h: vec![0; l.ph * stride],
+                c: vec![0; l.hidden * stride],
+            })
+            .collect();
+        let rows = self.lstms.iter().map(|l| 4 * l.hidden).max().unwrap_or(0);
+        let px = self.lstms.iter().map(|l| l.px).max().unwrap_or(0);
+        BatchState {
+            lanes,
+            stride,
+            features: vec![FeatureState::new(); lanes],
+            decision: vec![DecisionState::default(); lanes],
+            contact: vec![ContactState::new(); lanes],
+            lstm,
+            x_q15: vec![0; lanes],
+            active: vec![true; lanes],
+            out: vec![
+                StepOutput {
+                    p_unstable_q15: 0,
+                    unstable: false
+                };
+                lanes
+            ],
+            scratch: Scratch {
+                feats: vec![[0; MAX_INPUT]; CHUNK_LANES],
+                x: vec![0; px * CHUNK_LANES],
+                acc_x: vec![0; rows * CHUNK_LANES],
+                acc_h: vec![0; rows * CHUNK_LANES],
+                gates: vec![0; rows * CHUNK_LANES],
+                dense: vec![0; BATCH_TILE_ROWS * CHUNK_LANES],
+                logits: vec![[0; 2]; CHUNK_LANES],
+            },
+        }
+    }
+
+    /// [`Model::step`] for every lane: lane `l` takes the raw sample `raw[l]` and its output
+    /// goes to `out[l]`. Lanes past `raw.len()` or `out.len()` are not stepped.
+    pub fn step(&self, st: &mut BatchState, raw: &[i32], out: &mut [StepOutput]) {
+        let scale = self.model.scale();
+        let n = st.lanes.min(raw.len()).min(out.len());
+        for l in 0..st.lanes {
+            st.active[l] = l < n;
+            st.x_q15[l] = raw.get(l).map_or(0, |&r| scale.to_q15(r));
+        }
+        self.step_active(st);
+        out[..n].copy_from_slice(&st.out[..n]);
+    }
+
+    /// [`Model::step`] for the lanes with `active[l]` (the others keep their state and their
+    /// `out` entry): sequences of different lengths in one batch.
+    pub fn step_masked(
+        &self,
+        st: &mut BatchState,
+        raw: &[i32],
+        active: &[bool],
+        out: &mut [StepOutput],
+    ) {
+        let scale = self.model.scale();
+        for l in 0..st.lanes {
+            let on = active.get(l).copied().unwrap_or(false) && l < raw.len() && l < out.len();
+            st.active[l] = on;
+            st.x_q15[l] = if on { scale.to_q15(raw[l]) } else { 0 };
+        }
+        self.step_active(st);
+        for l in 0..st.lanes.min(out.len()) {
+            if st.active[l] {
+                out[l] = st.out[l];
+            }
+        }
+    }
+
+    /// [`Model::step_in_contact`] for every lane (`raw[l]`, `out[l]`; lanes past either slice
+    /// are not stepped), or only the lanes with `active[l]` if `active` is given.
+    pub fn step_in_contact(
+        &self,
+        st: &mut BatchState,
+        contact: &ContactConfig,
+        raw: &[i32],
+        active: Option<&[bool]>,
+        out: &mut [GatedOutput],
+    ) {
+        let scale = self.model.scale();
+        let n = st.lanes.min(raw.len()).min(out.len());
+        for l in 0..st.lanes {
+            let on = l < n && active.is_none_or(|a| a.get(l).copied().unwrap_or(false));
+            st.active[l] = false;
+            st.x_q15[l] = 0;
+            if !on {
+                continue;
+            }
+            let x = scale.to_q15(raw[l]);
+            let edge = contact.update(&mut st.contact[l], x);
+            if edge == ContactEdge::Began {
+                st.restart_lane(l);
+            }
+            st.active[l] = edge.in_contact();
+            st.x_q15[l] = x;
+            out[l] = GatedOutput {
+                contact: edge,
+                step: None,
+            };
+        }
+        self.step_active(st);
+        for l in 0..n {
+            if st.active[l] {
+                out[l].step = Some(st.out[l]);
+            }
+        }
+    }
+
+    /// One step of the lanes with `st.active` on the Q1.15 samples `st.x_q15`, into `st.out`.
+    fn step_active(&self, st: &mut BatchState) {
+        let BatchState {
+            lanes,
+            stride,
+            features,
+            decision,
+            lstm,
+            x_q15,
+            active,
+            out,
+            scratch: s,
+            ..
+        } = st;
+        let (lanes, stride) = (*lanes, *stride);
+        if !active.iter().any(|&a| a) {
+            return;
+        }
+        let n = self.layout.len().min(MAX_INPUT);
+        let norm = self.model.blob().norm;
+        for c0 in (0..stride).step_by(CHUNK_LANES) {
+            let cl = CHUNK_LANES.min(stride - c0);
+            let on = |i: usize| c0 + i < lanes && active[c0 + i];
+            if !(0..cl).any(on) {
+                continue;
+            }
+            // The front end, lane by lane (the single path's code).
+            for i in 0..cl {
+                let v = &mut s.feats[i];
+                *v = [0; MAX_INPUT];
+                if on(i) {
+                    let g = c0 + i;
+                    raw_features(
+                        self.layout,
+                        self.plan.as_ref(),
+                        &mut features[g],
+                        x_q15[g],
+                        v,
+                    );
+                    normalise(norm, &mut v[..n]);
+                }
+            }
+            s.logits[..cl].fill([0; 2]);
+            for (pk, lk) in self.lstms.iter().zip(lstm.iter_mut()) {
+                self.lstm_chunk(pk, lk, s, stride, c0, cl, &on);
+                // The dense layer's two sums on this LSTM's new h (rows 2, 3 are padding).
+                let d = &mut s.dense[..BATCH_TILE_ROWS * cl];
+                batch_pair_sums(&pk.dense, pk.ph, &lk.h[c0..], stride, cl, d);
+                for (i, l) in s.logits[..cl].iter_mut().enumerate() {
+                    l[0] += d[i] as i64;
+                    l[1] += d[cl + i] as i64;
+                }
+            }
+            // decision::p_unstable and the decision, per lane.
+            let [r0, r1] = &self.dense_rows;
+            for i in (0..cl).filter(|&i| on(i)) {
+                let [a0, a1] = s.logits[i];
+                let l0 = round_shift_i64(a0 * r0.m as i64, r0.shift as u32) + r0.bias_q12 as i64;
+                let l1 = round_shift_i64(a1 * r1.m as i64, r1.shift as u32) + r1.bias_q12 as i64;
+                let p = sigmoid(sat_i16_wide(l1 - l0));
+                let g = c0 + i;
+                let unstable = self.decision.update(&mut decision[g], p);
+                out[g] = StepOutput {
+                    p_unstable_q15: p,
+                    unstable,
+                };
+            }
+        }
+    }
+
+    /// One LSTM over lanes `c0..c0 + cl`: the two matrix products, the gate rows, the cell
+    /// update of the lanes `on`.
+    #[allow(clippy::too_many_arguments)]
+    fn lstm_chunk(
+        &self,
+        pk: &PackedLstm,
+        lk: &mut LaneLstm,
+        s: &mut Scratch,
+        stride: usize,
+        c0: usize,
+        cl: usize,
+        on: &dyn Fn(usize) -> bool,
+    ) {
+        let (hn, rows) = (pk.hidden, 4 * pk.hidden);
+        // x as pairs of features, lane-contiguous: x[p·cl + i].
+        let x = &mut s.x[..pk.px * cl];
+        for p in 0..pk.px {
+            for i in 0..cl {
+                let v = &s.feats[i];
+                let (a, b) = (2 * p, 2 * p + 1);
+                let get = |k: usize| if k < pk.take { v[pk.first + k] } else { 0 };
+                x[p * cl + i] = pair(get(a), get(b));
+            }
+        }
+        let (ax, ah) = (&mut s.acc_x[..rows * cl], &mut s.acc_h[..rows * cl]);
+        batch_pair_sums(&pk.wx, pk.px, x, cl, cl, ax);
+        batch_pair_sums(&pk.wh, pk.ph, &lk.h[c0..], stride, cl, ah);
+        // Gate rows: requantisation and σ (rows i, f, o) or tanh (rows g, 2H..3H), Q0.15.
+        let gates = &mut s.gates[..rows * cl];
+        let (sig, tanh) = (activation::table(false), activation::table(true));
+        for (r, p) in pk.rows.iter().enumerate() {
+            let table = if (2 * hn..3 * hn).contains(&r) {
+                tanh
+            } else {
+                sig
+            };
+            let span = r * cl..(r + 1) * cl;
+            let it = gates[span.clone()]
+                .iter_mut()
+                .zip(&ax[span.clone()])
+                .zip(&ah[span]);
+            for ((g, &a), &b) in it {
+                *g = activation::lookup(table, requant(p, a, b));
+            }
+        }
+        // Cell update, unit by unit (lstm::cell_unit), two units per h word.
+        for p in 0..pk.ph {
+            for i in (0..cl).filter(|&i| on(i)) {
+                let lane = c0 + i;
+                let word = &mut lk.h[p * stride + lane];
+                let mut hv = [*word as u16 as i16, (*word >> 16) as u16 as i16];
+                for (u, h) in hv.iter_mut().enumerate() {
+                    let j = 2 * p + u;
+                    if j >= hn {
+                        break;
+                    }
+                    let g = |gate: usize| gates[(gate * hn + j) * cl + i];
+                    cell_unit(
+                        pk.shifts,
+                        [g(0), g(1), g(2), g(3)],
+                        &mut lk.c[j * stride + lane],
+                        h,
+                    );
+                }
+                *word = pair(hv[0], hv[1]);
+            }
+        }
+    }
+}
+
+/// One LSTM's state for all lanes: `h[p·stride + lane]` holds units 2p and 2p + 1 (Q0.15,
+/// low and high half), `c[j·stride + lane]` unit j (Q(15-C).C).
+#[derive(Clone, Debug)]
+struct LaneLstm {
+    h: Vec<u32>,
+    c: Vec<i16>,
+}
+
+/// Working buffers of one chunk.
+#[derive(Clone, Debug)]
+struct Scratch {
+    feats: Vec<[i16; MAX_INPUT]>,
+    x: Vec<u32>,
+    acc_x: Vec<i32>,
+    acc_h: Vec<i32>,
+    gates: Vec<i16>,
+    dense: Vec<i32>,
+    logits: Vec<[i64; 2]>,
+}
+
+/// The state of a batch of channels (lanes) of one [`BatchModel`]: what a [`ChannelState`]
+/// holds, for every lane, plus the step's working buffers.
+#[derive(Clone, Debug)]
+pub struct BatchState {
+    lanes: usize,
+    /// Lanes rounded up to whole kernel tiles: the row stride of the lane arrays.
+    stride: usize,
+    features: Vec<FeatureState>,
+    decision: Vec<DecisionState>,
+    contact: Vec<ContactState>,
+    lstm: Vec<LaneLstm>,
+    x_q15: Vec<i16>,
+    active: Vec<bool>,
+    out: Vec<StepOutput>,
+    scratch: Scratch,
+}
+
+impl BatchState {
+    /// Number of lanes (channels).
+    pub fn lanes(&self) -> usize {
+        self.lanes
+    }
+
+    /// Forgets everything of lane `l` ([`ChannelState::reset`]).
+    pub fn reset_lane(&mut self, l: usize) {
+        if l < self.lanes {
+            self.restart_lane(l);
+            self.contact[l] = ContactState::new();
+        }
+    }
+
+    /// Restarts lane `l`'s model state and keeps its contact state ([`ChannelState::restart`]).
+    pub fn restart_lane(&mut self, l: usize) {
+        if l >= self.lanes {
+            return;
+        }
+        self.features[l] = FeatureState::new();
+        self.decision[l] = DecisionState::default();
+        let stride = self.stride;
+        for k in &mut self.lstm {
+            k.h.iter_mut().skip(l).step_by(stride).for_each(|w| *w = 0);
+            k.c.iter_mut().skip(l).step_by(stride).for_each(|c| *c = 0);
+        }
+    }
+
+    /// Forgets every lane.
+    pub fn reset(&mut self) {
+        for l in 0..self.lanes {
+            self.reset_lane(l);
+        }
+    }
+
+    /// Lane `l` as a [`ChannelState`] (what [`Model::step`] would hold), `None` past the lanes.
+    pub fn channel(&self, l: usize) -> Option<ChannelState> {
+        if l >= self.lanes {
+            return None;
+        }
+        let mut st = ChannelState::new();
+        st.features = self.features[l].clone();
+        st.decision = self.decision[l];
+        st.contact = self.contact[l];
+        for (k, s) in self.lstm.iter().zip(st.lstm.iter_mut()) {
+            *s = LstmState::new();
+            for (j, c) in s.c.iter_mut().enumerate() {
+                if let Some(&v) = k.c.get(j * self.stride + l) {
+                    *c = v;
+                }
+            }
+            for (j, h) in s.h.iter_mut().enumerate() {
+                if let Some(&w) = k.h.get(j / 2 * self.stride + l) {
+                    *h = (w >> (16 * (j % 2))) as u16 as i16;
+                }
+            }
+        }
+        Some(st)
+    }
+}
