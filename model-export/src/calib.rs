@@ -12,9 +12,10 @@ use std::path::Path;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
+use slipguard_core::batch::BatchModel;
 use slipguard_core::blob::{AlignedBlob, ModelConfig};
 use slipguard_core::float::FloatModel;
-use slipguard_core::model::{ChannelState, Model};
+use slipguard_core::model::{Model, StepOutput};
 use slipguard_core::quantize::{CELL_HEADROOM, DEFAULT_CELL_FRAC_BITS, cell_bits_for};
 use slipguard_core::sample::InputScale;
 use slipguard_data::labels::{self, ChannelSequence, LabelConfig};
@@ -448,102 +449,83 @@ pub fn agreement(
     Ok(a)
 }
 
-/// Runs both models over every sequence (from a reset state each) and compares them.
+/// One sequence's part of [`compare`], combined in the sequences' order.
+struct SeqCompare {
+    /// |Δp| per step, in step order (summed in order, so the mean is the sequential one).
+    dps: Vec<f32>,
+    /// The sequence's largest |Δp| and the first step that reaches it.
+    max_dp: f32,
+    worst: Option<WorstStep>,
+    max_dh: f32,
+    disagree: usize,
+    decisive: usize,
+    decisive_disagree: usize,
+    ev: Option<(EvalSequence, EvalSequence)>,
+}
+
+/// Sequences per batch of the quantized model in [`compare`] (one rayon task each).
+const COMPARE_BATCH: usize = 64;
+
+/// Runs both models over every sequence (from a reset state each) and compares them. The
+/// quantized model runs batched ([`slipguard_core::batch`], bit-exact with `Model::step`),
+/// [`COMPARE_BATCH`] sequences at a time, the batches in parallel (rayon); the float model
+/// steps beside it, and the per-sequence results are combined in the sequences' order, so the
+/// agreement is the same for any thread count.
 pub fn compare(
     float: &FloatModel,
     blob: &[u8],
     seqs: &[ChannelSequence],
     quiet: bool,
 ) -> Result<Agreement> {
+    use rayon::prelude::*;
     let aligned = AlignedBlob::new(blob);
     let model = Model::from_bytes(aligned.as_bytes()).map_err(|e| ExportError::Blob {
         path: "(exported blob)".into(),
         source: e,
     })?;
+    let batch = BatchModel::new(&model).map_err(|e| ExportError::Data(e.to_string()))?;
     let rate = float.config.sample_rate_hz() as f64;
-    let (mut steps, mut disagree) = (0usize, 0usize);
-    let (mut decisive, mut decisive_disagree) = (0usize, 0usize);
     let th = float.config.threshold_q15 as f32 / 32768.0;
     let window = float
         .config
         .raise_after
         .max(float.config.clear_after)
         .max(1) as usize;
+    let pb = bar(seqs.len(), "comparing", quiet);
+    let parts: Vec<SeqCompare> = seqs
+        .par_chunks(COMPARE_BATCH)
+        .flat_map_iter(|chunk| {
+            let r = compare_chunk(float, &batch, chunk, th, window, rate);
+            pb.inc(chunk.len() as u64);
+            r
+        })
+        .collect();
+    pb.finish_and_clear();
+    let (mut steps, mut disagree) = (0usize, 0usize);
+    let (mut decisive, mut decisive_disagree) = (0usize, 0usize);
     let (mut max_dp, mut sum_dp, mut max_dh) = (0f32, 0f64, 0f32);
     let mut worst = None;
     let (mut ev_f, mut ev_q) = (Vec::new(), Vec::new());
-    let pb = bar(seqs.len(), "comparing", quiet);
-    for s in seqs {
-        let mut fs = float.new_channel();
-        let mut qs = ChannelState::new();
-        let (mut pf, mut pq) = (Vec::new(), Vec::new());
-        let mut close_run = usize::MAX; // steps since p was last within the margin
-        for (i, &raw) in s.samples.iter().enumerate() {
-            let f = float.step(&mut fs, raw);
-            let q = model.step(&mut qs, raw.round() as i32);
-            let p = q.p_unstable_q15 as f32 / 32768.0;
-            let dp = (p - f.p_unstable).abs();
-            if dp > max_dp || worst.is_none() {
-                worst = Some(WorstStep {
-                    trial: s.trial_id.clone(),
-                    channel: s.channel,
-                    step: i,
-                    p_float: f.p_unstable,
-                    p_quantized: p,
-                });
-            }
-            max_dp = max_dp.max(dp);
-            sum_dp += dp as f64;
-            for (k, l) in float.lstms.iter().enumerate() {
-                for j in 0..l.hidden {
-                    max_dh = max_dh.max((qs.lstm[k].h[j] as f32 / 32768.0 - fs.lstm[k].h[j]).abs());
-                }
-            }
-            if f.unstable != q.unstable {
-                disagree += 1;
-            }
-            close_run = if (f.p_unstable - th).abs() < DECISIVE_MARGIN {
-                0
-            } else {
-                close_run.saturating_add(1)
-            };
-            if close_run >= window {
-                decisive += 1;
-                if f.unstable != q.unstable {
-                    decisive_disagree += 1;
-                }
-            }
-            let st = |u: bool| {
-                if u {
-                    Stability::Unstable
-                } else {
-                    Stability::Stable
-                }
-            };
-            pf.push(st(f.unstable));
-            pq.push(st(q.unstable));
-            steps += 1;
+    for p in parts {
+        // The first step (in sequence order) that reaches the largest |Δp|, as one pass
+        // over all steps finds it.
+        if p.worst.is_some() && (p.max_dp > max_dp || worst.is_none()) {
+            worst = p.worst;
         }
-        if !s.labels.is_empty() && s.labels.len() == pf.len() {
-            let failure = s.outcome == Outcome::Failure;
-            ev_f.push(EvalSequence::new(
-                &s.labels,
-                &pf,
-                s.drop_index,
-                failure,
-                rate,
-            ));
-            ev_q.push(EvalSequence::new(
-                &s.labels,
-                &pq,
-                s.drop_index,
-                failure,
-                rate,
-            ));
+        max_dp = max_dp.max(p.max_dp);
+        for &d in &p.dps {
+            sum_dp += d as f64;
         }
-        pb.inc(1);
+        steps += p.dps.len();
+        max_dh = max_dh.max(p.max_dh);
+        disagree += p.disagree;
+        decisive += p.decisive;
+        decisive_disagree += p.decisive_disagree;
+        if let Some((f, q)) = p.ev {
+            ev_f.push(f);
+            ev_q.push(q);
+        }
     }
-    pb.finish_and_clear();
     if steps == 0 {
         return Err(ExportError::Data("no steps to compare".into()));
     }
@@ -574,6 +556,111 @@ pub fn compare(
         float_metrics: fm,
         quant_metrics: qm,
     })
+}
+
+/// [`compare`] of one batch of sequences: the quantized lanes step together, each lane's
+/// float model beside it.
+fn compare_chunk(
+    float: &FloatModel,
+    batch: &BatchModel<'_>,
+    seqs: &[ChannelSequence],
+    th: f32,
+    window: usize,
+    rate: f64,
+) -> Vec<SeqCompare> {
+    let lanes = seqs.len();
+    let mut qs = batch.state(lanes);
+    let mut fs: Vec<_> = seqs.iter().map(|_| float.new_channel()).collect();
+    let mut parts: Vec<SeqCompare> = seqs
+        .iter()
+        .map(|s| SeqCompare {
+            dps: Vec::with_capacity(s.samples.len()),
+            max_dp: 0.0,
+            worst: None,
+            max_dh: 0.0,
+            disagree: 0,
+            decisive: 0,
+            decisive_disagree: 0,
+            ev: None,
+        })
+        .collect();
+    let mut pf: Vec<Vec<Stability>> = seqs.iter().map(|_| Vec::new()).collect();
+    let mut pq = pf.clone();
+    // Steps since p was last within the margin, per lane.
+    let mut close_run = vec![usize::MAX; lanes];
+    let steps = seqs.iter().map(|s| s.samples.len()).max().unwrap_or(0);
+    let (mut raw, mut active) = (vec![0i32; lanes], vec![false; lanes]);
+    let mut out = vec![
+        StepOutput {
+            p_unstable_q15: 0,
+            unstable: false
+        };
+        lanes
+    ];
+    let st = |u: bool| {
+        if u {
+            Stability::Unstable
+        } else {
+            Stability::Stable
+        }
+    };
+    for i in 0..steps {
+        for (l, s) in seqs.iter().enumerate() {
+            active[l] = i < s.samples.len();
+            raw[l] = s.samples.get(i).map_or(0, |x| x.round() as i32);
+        }
+        batch.step_masked(&mut qs, &raw, &active, &mut out);
+        for (l, s) in seqs.iter().enumerate().filter(|(l, _)| active[*l]) {
+            let part = &mut parts[l];
+            let f = float.step(&mut fs[l], s.samples[i]);
+            let q = out[l];
+            let p = q.p_unstable_q15 as f32 / 32768.0;
+            let dp = (p - f.p_unstable).abs();
+            if dp > part.max_dp || part.worst.is_none() {
+                part.worst = Some(WorstStep {
+                    trial: s.trial_id.clone(),
+                    channel: s.channel,
+                    step: i,
+                    p_float: f.p_unstable,
+                    p_quantized: p,
+                });
+            }
+            part.max_dp = part.max_dp.max(dp);
+            part.dps.push(dp);
+            for (k, fl) in float.lstms.iter().enumerate() {
+                for j in 0..fl.hidden {
+                    let dh = (qs.h(l, k, j) as f32 / 32768.0 - fs[l].lstm[k].h[j]).abs();
+                    part.max_dh = part.max_dh.max(dh);
+                }
+            }
+            if f.unstable != q.unstable {
+                part.disagree += 1;
+            }
+            close_run[l] = if (f.p_unstable - th).abs() < DECISIVE_MARGIN {
+                0
+            } else {
+                close_run[l].saturating_add(1)
+            };
+            if close_run[l] >= window {
+                part.decisive += 1;
+                if f.unstable != q.unstable {
+                    part.decisive_disagree += 1;
+                }
+            }
+            pf[l].push(st(f.unstable));
+            pq[l].push(st(q.unstable));
+        }
+    }
+    for (l, s) in seqs.iter().enumerate() {
+        if !s.labels.is_empty() && s.labels.len() == pf[l].len() {
+            let failure = s.outcome == Outcome::Failure;
+            parts[l].ev = Some((
+                EvalSequence::new(&s.labels, &pf[l], s.drop_index, failure, rate),
+                EvalSequence::new(&s.labels, &pq[l], s.drop_index, failure, rate),
+            ));
+        }
+    }
+    parts
 }
 
 /// Wraps raw sample sequences (no labels) for [`agreement`].

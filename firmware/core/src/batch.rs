@@ -22,14 +22,16 @@
 use core::fmt;
 
 use crate::MAX_INPUT;
-use crate::activation::{self, sigmoid};
+use crate::activation::sigmoid;
 use crate::blob::{DenseRowParams, LstmRowParams, LstmTensors, pad4};
 use crate::decision::{ContactConfig, ContactEdge, ContactState, DecisionConfig, DecisionState};
-use crate::dsp::{BATCH_TILE_LANES, BATCH_TILE_ROWS, batch_pair_sums};
+use crate::dsp::{
+    BATCH_TILE_LANES, BATCH_TILE_ROWS, batch_cell_update, batch_gate_rows, batch_pair_sums,
+};
 use crate::features::stft::StftPlan;
 use crate::features::{FeatureLayout, FeatureState, normalise, raw_features};
 use crate::fixed::{round_shift_i64, sat_i16_wide};
-use crate::lstm::{CellShifts, LstmState, cell_unit, requant};
+use crate::lstm::{CellShifts, LstmState};
 use crate::model::{ChannelState, GatedOutput, Model, StepOutput};
 
 /// Lanes per pass of a step: the chunk's gate sums (2 × 4H × 64 `i32`, 128 KiB for H = 128)
@@ -272,6 +274,7 @@ impl<'a> BatchModel<'a> {
                 acc_x: vec![0; rows * CHUNK_LANES],
                 acc_h: vec![0; rows * CHUNK_LANES],
                 gates: vec![0; rows * CHUNK_LANES],
+                on: vec![false; CHUNK_LANES],
                 dense: vec![0; BATCH_TILE_ROWS * CHUNK_LANES],
                 logits: vec![[0; 2]; CHUNK_LANES],
             },
@@ -375,15 +378,17 @@ impl<'a> BatchModel<'a> {
         let norm = self.model.blob().norm;
         for c0 in (0..stride).step_by(CHUNK_LANES) {
             let cl = CHUNK_LANES.min(stride - c0);
-            let on = |i: usize| c0 + i < lanes && active[c0 + i];
-            if !(0..cl).any(on) {
+            for i in 0..cl {
+                s.on[i] = c0 + i < lanes && active[c0 + i];
+            }
+            if !s.on[..cl].iter().any(|&a| a) {
                 continue;
             }
             // The front end, lane by lane (the single path's code).
             for i in 0..cl {
                 let v = &mut s.feats[i];
                 *v = [0; MAX_INPUT];
-                if on(i) {
+                if s.on[i] {
                     let g = c0 + i;
                     raw_features(
                         self.layout,
@@ -397,7 +402,7 @@ impl<'a> BatchModel<'a> {
             }
             s.logits[..cl].fill([0; 2]);
             for (pk, lk) in self.lstms.iter().zip(lstm.iter_mut()) {
-                self.lstm_chunk(pk, lk, s, stride, c0, cl, &on);
+                self.lstm_chunk(pk, lk, s, stride, c0, cl);
                 // The dense layer's two sums on this LSTM's new h (rows 2, 3 are padding).
                 let d = &mut s.dense[..BATCH_TILE_ROWS * cl];
                 batch_pair_sums(&pk.dense, pk.ph, &lk.h[c0..], stride, cl, d);
@@ -408,7 +413,7 @@ impl<'a> BatchModel<'a> {
             }
             // decision::p_unstable and the decision, per lane.
             let [r0, r1] = &self.dense_rows;
-            for i in (0..cl).filter(|&i| on(i)) {
+            for i in (0..cl).filter(|&i| s.on[i]) {
                 let [a0, a1] = s.logits[i];
                 let l0 = round_shift_i64(a0 * r0.m as i64, r0.shift as u32) + r0.bias_q12 as i64;
                 let l1 = round_shift_i64(a1 * r1.m as i64, r1.shift as u32) + r1.bias_q12 as i64;
@@ -434,7 +439,6 @@ impl<'a> BatchModel<'a> {
         stride: usize,
         c0: usize,
         cl: usize,
-        on: &dyn Fn(usize) -> bool,
     ) {
         let (hn, rows) = (pk.hidden, 4 * pk.hidden);
         // x as pairs of features, lane-contiguous: x[p·cl + i].
@@ -452,44 +456,19 @@ impl<'a> BatchModel<'a> {
         batch_pair_sums(&pk.wh, pk.ph, &lk.h[c0..], stride, cl, ah);
         // Gate rows: requantisation and σ (rows i, f, o) or tanh (rows g, 2H..3H), Q0.15.
         let gates = &mut s.gates[..rows * cl];
-        let (sig, tanh) = (activation::table(false), activation::table(true));
-        for (r, p) in pk.rows.iter().enumerate() {
-            let table = if (2 * hn..3 * hn).contains(&r) {
-                tanh
-            } else {
-                sig
-            };
-            let span = r * cl..(r + 1) * cl;
-            let it = gates[span.clone()]
-                .iter_mut()
-                .zip(&ax[span.clone()])
-                .zip(&ah[span]);
-            for ((g, &a), &b) in it {
-                *g = activation::lookup(table, requant(p, a, b));
-            }
-        }
-        // Cell update, unit by unit (lstm::cell_unit), two units per h word.
-        for p in 0..pk.ph {
-            for i in (0..cl).filter(|&i| on(i)) {
-                let lane = c0 + i;
-                let word = &mut lk.h[p * stride + lane];
-                let mut hv = [*word as u16 as i16, (*word >> 16) as u16 as i16];
-                for (u, h) in hv.iter_mut().enumerate() {
-                    let j = 2 * p + u;
-                    if j >= hn {
-                        break;
-                    }
-                    let g = |gate: usize| gates[(gate * hn + j) * cl + i];
-                    cell_unit(
-                        pk.shifts,
-                        [g(0), g(1), g(2), g(3)],
-                        &mut lk.c[j * stride + lane],
-                        h,
-                    );
-                }
-                *word = pair(hv[0], hv[1]);
-            }
-        }
+        batch_gate_rows(ax, ah, &pk.rows, hn, cl, gates);
+        // Cell update, unit by unit (lstm::cell_unit), the lanes `on` only.
+        batch_cell_update(
+            gates,
+            hn,
+            cl,
+            pk.shifts,
+            &s.on[..cl],
+            &mut lk.h,
+            &mut lk.c,
+            stride,
+            c0,
+        );
     }
 }
 
@@ -509,6 +488,8 @@ struct Scratch {
     acc_x: Vec<i32>,
     acc_h: Vec<i32>,
     gates: Vec<i16>,
+    /// The chunk's lanes that step.
+    on: Vec<bool>,
     dense: Vec<i32>,
     logits: Vec<[i64; 2]>,
 }
@@ -563,6 +544,18 @@ impl BatchState {
         for l in 0..self.lanes {
             self.reset_lane(l);
         }
+    }
+
+    /// Hidden unit `j` of LSTM `k` of lane `l` (Q0.15; 0 outside the model's sizes): what
+    /// `ChannelState::lstm[k].h[j]` holds after the same steps.
+    pub fn h(&self, l: usize, k: usize, j: usize) -> i16 {
+        if l >= self.lanes {
+            return 0;
+        }
+        self.lstm
+            .get(k)
+            .and_then(|s| s.h.get(j / 2 * self.stride + l))
+            .map_or(0, |&w| (w >> (16 * (j % 2))) as u16 as i16)
     }
 
     /// Lane `l` as a [`ChannelState`] (what [`Model::step`] would hold), `None` past the lanes.

@@ -1766,6 +1766,137 @@ fn pair_sums_cell_range(
     }
 }
 
+/// The batched LSTM's gate pass over `lanes` lanes (host, `std`): for row r and lane l,
+/// `gates[r·lanes + l] = f(requant(rows[r], acc_x[r·lanes + l], acc_h[r·lanes + l]))` with
+/// f = tanh for the cell-candidate rows `2·hn..3·hn` and σ for the others: the single path's
+/// gate pass ([`crate::lstm::gate_activations_portable`]: the same requantisation and table
+/// lookups), row by row with the lanes innermost. With AVX2 (detected at run time) the same
+/// code compiled for AVX2 (the requantisation's 32 × 32 → 64-bit products as VPMULDQ).
+#[cfg(feature = "std")]
+pub fn batch_gate_rows(
+    acc_x: &[i32],
+    acc_h: &[i32],
+    rows: &[LstmRowParams],
+    hn: usize,
+    lanes: usize,
+    gates: &mut [i16],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is present (detected above); the function is safe code compiled for it.
+        unsafe { x86::gate_rows_avx2(acc_x, acc_h, rows, hn, lanes, gates) };
+        return;
+    }
+    batch_gate_rows_portable(acc_x, acc_h, rows, hn, lanes, gates);
+}
+
+/// The code of [`batch_gate_rows`] (inlined into each target's copy).
+#[cfg(feature = "std")]
+#[inline(always)]
+pub fn batch_gate_rows_portable(
+    acc_x: &[i32],
+    acc_h: &[i32],
+    rows: &[LstmRowParams],
+    hn: usize,
+    lanes: usize,
+    gates: &mut [i16],
+) {
+    let (sig, tanh) = (interval_table(false), interval_table(true));
+    for (r, p) in rows.iter().enumerate() {
+        let table = if (2 * hn..3 * hn).contains(&r) {
+            tanh
+        } else {
+            sig
+        };
+        let span = r * lanes..(r + 1) * lanes;
+        let (Some(g), Some(a), Some(b)) = (
+            gates.get_mut(span.clone()),
+            acc_x.get(span.clone()),
+            acc_h.get(span),
+        ) else {
+            return;
+        };
+        for ((g, &a), &b) in g.iter_mut().zip(a).zip(b) {
+            *g = crate::activation::lookup(table, crate::lstm::requant(p, a, b));
+        }
+    }
+}
+
+/// The batched LSTM's cell update (host, `std`) for the `lanes` lanes starting at lane `c0` of
+/// a state with row stride `stride`: for each unit j < `hn` and lane i, the single path's
+/// [`crate::lstm::cell_unit`] from the gates `gates[(g·hn + j)·lanes + i]` (i, f, g, o) on
+/// `c[j·stride + c0 + i]`, writing c' there and h' into the low (j even) or high (j odd) half of
+/// `h[(j / 2)·stride + c0 + i]`; lanes with `on[i]` false keep their c and h. With AVX2
+/// (detected at run time) the same code compiled for AVX2.
+#[cfg(feature = "std")]
+#[allow(clippy::too_many_arguments)]
+pub fn batch_cell_update(
+    gates: &[i16],
+    hn: usize,
+    lanes: usize,
+    k: crate::lstm::CellShifts,
+    on: &[bool],
+    h: &mut [u32],
+    c: &mut [i16],
+    stride: usize,
+    c0: usize,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is present (detected above); the function is safe code compiled for it.
+        unsafe { x86::cell_update_avx2(gates, hn, lanes, k, on, h, c, stride, c0) };
+        return;
+    }
+    batch_cell_update_portable(gates, hn, lanes, k, on, h, c, stride, c0);
+}
+
+/// The code of [`batch_cell_update`] (inlined into each target's copy).
+#[cfg(feature = "std")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn batch_cell_update_portable(
+    gates: &[i16],
+    hn: usize,
+    lanes: usize,
+    k: crate::lstm::CellShifts,
+    on: &[bool],
+    h: &mut [u32],
+    c: &mut [i16],
+    stride: usize,
+    c0: usize,
+) {
+    let gate = |g: usize, j: usize| gates.get((g * hn + j) * lanes..(g * hn + j + 1) * lanes);
+    for p in 0..hn.div_ceil(2) {
+        let Some(hw) = h.get_mut(p * stride + c0..p * stride + c0 + lanes) else {
+            return;
+        };
+        for u in 0..2 {
+            let j = 2 * p + u;
+            if j >= hn {
+                break;
+            }
+            let (Some(gi), Some(gf), Some(gg), Some(go), Some(cj), Some(on)) = (
+                gate(0, j),
+                gate(1, j),
+                gate(2, j),
+                gate(3, j),
+                c.get_mut(j * stride + c0..j * stride + c0 + lanes),
+                on.get(..lanes),
+            ) else {
+                return;
+            };
+            let shift = 16 * u as u32;
+            for i in 0..lanes {
+                let (mut cn, mut hv) = (cj[i], 0i16);
+                crate::lstm::cell_unit(k, [gi[i], gf[i], gg[i], go[i]], &mut cn, &mut hv);
+                let word = (hw[i] & !(0xffff << shift)) | (hv as u16 as u32) << shift;
+                cj[i] = if on[i] { cn } else { cj[i] };
+                hw[i] = if on[i] { word } else { hw[i] };
+            }
+        }
+    }
+}
+
 #[cfg(all(feature = "std", target_arch = "x86_64"))]
 mod x86 {
     use super::{BATCH_TILE_LANES, BATCH_TILE_ROWS};
@@ -1773,6 +1904,36 @@ mod x86 {
         __m256i, _mm256_add_epi32, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_set1_epi32,
         _mm256_setzero_si256, _mm256_storeu_si256,
     };
+
+    /// [`super::batch_gate_rows_portable`] compiled for AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn gate_rows_avx2(
+        acc_x: &[i32],
+        acc_h: &[i32],
+        rows: &[crate::blob::LstmRowParams],
+        hn: usize,
+        lanes: usize,
+        gates: &mut [i16],
+    ) {
+        super::batch_gate_rows_portable(acc_x, acc_h, rows, hn, lanes, gates)
+    }
+
+    /// [`super::batch_cell_update_portable`] compiled for AVX2.
+    #[target_feature(enable = "avx2")]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn cell_update_avx2(
+        gates: &[i16],
+        hn: usize,
+        lanes: usize,
+        k: crate::lstm::CellShifts,
+        on: &[bool],
+        h: &mut [u32],
+        c: &mut [i16],
+        stride: usize,
+        c0: usize,
+    ) {
+        super::batch_cell_update_portable(gates, hn, lanes, k, on, h, c, stride, c0)
+    }
 
     /// [`super::batch_pair_sums`] over rows `..rows` (a multiple of [`BATCH_TILE_ROWS`]) and
     /// lanes `..tile_lanes` (a multiple of [`BATCH_TILE_LANES`]): per tile, 8 accumulator

@@ -2,11 +2,12 @@
 //! trials, simulated force and suction), cross-validation folds by trial and the decision sweep.
 //! Metrics come from [`slipguard_data::metrics`]; the Fig. 8 plots are the CLI's.
 
+use slipguard_core::batch::BatchModel;
 use slipguard_core::blob::{AlignedBlob, InputUnit, ModelConfig, Variant};
 use slipguard_core::decision::{DecisionConfig, DecisionState, Q15};
 use slipguard_core::features::stft::StftConfig;
 use slipguard_core::float::FloatModel;
-use slipguard_core::model::{ChannelState, Model};
+use slipguard_core::model::{ChannelState, Model, StepOutput};
 use slipguard_core::quantize::quantize;
 
 use crate::error::Result;
@@ -173,6 +174,51 @@ pub fn quant_p_q15(model: &Model<'_>, samples: &[f32]) -> Vec<i16> {
         .collect()
 }
 
+/// Sequences per batch of [`quant_p_q15_many`] (one rayon task each).
+pub const BATCH_SEQUENCES: usize = 256;
+
+/// [`quant_p_q15`] of every sequence (each from a fresh state), the same numbers: the
+/// sequences run as the lanes of the batched core ([`slipguard_core::batch`], bit-exact with
+/// [`Model::step`]), [`BATCH_SEQUENCES`] per batch, the batches in parallel (rayon; the
+/// result in the sequences' order whatever the thread count). Shorter sequences of a batch
+/// stop stepping at their end. A model the batch cannot take (a RAM image) runs sequence by
+/// sequence.
+pub fn quant_p_q15_many(model: &Model<'_>, seqs: &[&[f32]]) -> Vec<Vec<i16>> {
+    use rayon::prelude::*;
+    let Ok(batch) = BatchModel::new(model) else {
+        return seqs.par_iter().map(|s| quant_p_q15(model, s)).collect();
+    };
+    seqs.par_chunks(BATCH_SEQUENCES)
+        .flat_map_iter(|chunk| {
+            let lanes = chunk.len();
+            let mut st = batch.state(lanes);
+            let steps = chunk.iter().map(|s| s.len()).max().unwrap_or(0);
+            let mut p: Vec<Vec<i16>> = chunk.iter().map(|s| Vec::with_capacity(s.len())).collect();
+            let (mut raw, mut active) = (vec![0i32; lanes], vec![false; lanes]);
+            let mut out = vec![
+                StepOutput {
+                    p_unstable_q15: 0,
+                    unstable: false
+                };
+                lanes
+            ];
+            for t in 0..steps {
+                for (l, s) in chunk.iter().enumerate() {
+                    active[l] = t < s.len();
+                    raw[l] = s.get(t).map_or(0, |x| x.round() as i32);
+                }
+                batch.step_masked(&mut st, &raw, &active, &mut out);
+                for (l, o) in out.iter().enumerate() {
+                    if active[l] {
+                        p[l].push(o.p_unstable_q15);
+                    }
+                }
+            }
+            p
+        })
+        .collect()
+}
+
 /// Flags after threshold and hysteresis.
 pub fn decide(d: DecisionConfig, p: &[i16]) -> Vec<Stability> {
     let mut s = DecisionState::default();
@@ -221,7 +267,8 @@ impl Kind {
     }
 }
 
-/// p(unstable) sequences of a model, float or quantized (`blob` = the quantized blob).
+/// p(unstable) sequences of a model, float or quantized (`blob` = the quantized blob); the
+/// quantized ones through [`quant_p_q15_many`].
 pub fn probabilities(
     model: &FloatModel,
     blob: &[u8],
@@ -236,9 +283,8 @@ pub fn probabilities(
         Kind::Quantized => {
             let aligned = AlignedBlob::new(blob);
             let m = Model::from_bytes(aligned.as_bytes())?;
-            seqs.iter()
-                .map(|s| quant_p_q15(&m, &s.cs.samples))
-                .collect()
+            let samples: Vec<&[f32]> = seqs.iter().map(|s| s.cs.samples.as_slice()).collect();
+            quant_p_q15_many(&m, &samples)
         }
     })
 }

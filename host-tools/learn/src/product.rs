@@ -4,8 +4,10 @@
 //! resets at the controller's grasp-start command) to the end of the trial. Then the grasp's
 //! armed window for [`crate::armed`].
 
-use slipguard_core::decision::{ContactConfig, DecisionState, HandConfig};
-use slipguard_core::model::{ChannelState, Model};
+use rayon::prelude::*;
+use slipguard_core::batch::BatchModel;
+use slipguard_core::decision::{ContactConfig, ContactEdge, DecisionState, HandConfig};
+use slipguard_core::model::{ChannelState, GatedOutput, Model};
 
 use slipguard_data::armed::ArmedGrasp;
 use slipguard_data::labels::{LabelConfig, detect_release};
@@ -48,26 +50,84 @@ impl HandRun {
 
 /// Runs `model` over every channel of `trial` from its grasp start (step 0 without a mark).
 /// Sample values are rounded to whole sensor units, as the firmware's front end delivers them.
+///
+/// The trial's channels step together through the batched core
+/// ([`slipguard_core::batch`], bit-exact with [`Model::step_in_contact`]); a model the batch
+/// cannot take (a RAM image) runs channel by channel ([`run_trial_single`], the same numbers).
 pub fn run_trial(
     model: &Model<'_>,
     trial: &Trial,
     contact: &ContactConfig,
     hand: &HandConfig,
 ) -> HandRun {
+    match BatchModel::new(model) {
+        Ok(batch) => run_trial_batched(&batch, trial, contact, hand),
+        Err(_) => run_trial_single(model, trial, contact, hand),
+    }
+}
+
+/// A run with no step yet: `start` and the buffers of `trial`'s length and channels.
+fn empty_run(trial: &Trial) -> HandRun {
     let n = trial.n_steps();
-    let start = trial.marks.grasp_start.unwrap_or(0).min(n);
     let nc = trial.n_channels();
-    let mut states = vec![ChannelState::new(); nc];
-    let mut run = HandRun {
-        start,
+    HandRun {
+        start: trial.marks.grasp_start.unwrap_or(0).min(n),
         hand_p: vec![0; n],
         hand_flag: vec![false; n],
         channel_p: vec![vec![None; n]; nc],
         channel_flag: vec![vec![false; n]; nc],
+    }
+}
+
+/// [`run_trial`] with the channels as the lanes of one batch.
+pub fn run_trial_batched(
+    batch: &BatchModel<'_>,
+    trial: &Trial,
+    contact: &ContactConfig,
+    hand: &HandConfig,
+) -> HandRun {
+    let mut run = empty_run(trial);
+    let nc = trial.n_channels();
+    let mut states = batch.state(nc);
+    let mut hand_state = DecisionState::default();
+    let idle = GatedOutput {
+        contact: ContactEdge::Idle,
+        step: None,
     };
+    let (mut raw, mut out) = (vec![0i32; nc], vec![idle; nc]);
+    for t in run.start..trial.n_steps() {
+        for (c, r) in raw.iter_mut().enumerate() {
+            *r = trial.samples[c][t].round() as i32;
+        }
+        batch.step_in_contact(&mut states, contact, &raw, None, &mut out);
+        for (c, o) in out.iter().enumerate() {
+            run.channel_p[c][t] = o.step.map(|s| s.p_unstable_q15);
+            run.channel_flag[c][t] = o.step.is_some_and(|s| s.unstable);
+        }
+        let h = hand.update(
+            &mut hand_state,
+            out.iter().map(|o| o.step.map(|s| s.p_unstable_q15)),
+        );
+        run.hand_p[t] = h.p_unstable_q15;
+        run.hand_flag[t] = h.unstable;
+    }
+    run
+}
+
+/// [`run_trial`] one channel at a time through [`Model::step_in_contact`] (the firmware's
+/// order): the reference of the batched run.
+pub fn run_trial_single(
+    model: &Model<'_>,
+    trial: &Trial,
+    contact: &ContactConfig,
+    hand: &HandConfig,
+) -> HandRun {
+    let mut run = empty_run(trial);
+    let nc = trial.n_channels();
+    let mut states = vec![ChannelState::new(); nc];
     let mut hand_state = DecisionState::default();
     let mut p_now = vec![None; nc];
-    for t in start..n {
+    for t in run.start..trial.n_steps() {
         for c in 0..nc {
             let raw = trial.samples[c][t].round() as i32;
             let out = model.step_in_contact(&mut states[c], contact, raw);
@@ -296,7 +356,8 @@ impl WindowedRun {
     }
 }
 
-/// Runs `model` over the trials with contact and keeps each run with its armed window.
+/// Runs `model` over the trials with contact and keeps each run with its armed window, the
+/// trials in parallel (rayon; the runs in the trials' order, the same for any thread count).
 pub fn windowed_runs(
     model: &Model<'_>,
     trials: &[&Trial],
@@ -304,20 +365,28 @@ pub fn windowed_runs(
 ) -> Result<Vec<WindowedRun>, ArmedError> {
     let contact = ContactConfig::of(model.config());
     let hand = HandConfig::of(model.config());
-    let mut out = Vec::new();
-    for t in trials {
-        let Some(window) = armed_window(t, cfg)? else {
-            continue;
-        };
-        out.push(WindowedRun {
-            trial: t.id.clone(),
-            failure: t.outcome == Outcome::Failure,
-            window,
-            step_ms: 1000.0 / t.rate_hz as f64,
-            run: run_trial(model, t, &contact, &hand),
-        });
-    }
-    Ok(out)
+    let batch = BatchModel::new(model).ok();
+    // Collected in order, so that the first trial in error is the one reported.
+    let runs: Vec<Result<Option<WindowedRun>, ArmedError>> = trials
+        .par_iter()
+        .map(|t| {
+            let Some(window) = armed_window(t, cfg)? else {
+                return Ok(None);
+            };
+            let run = match &batch {
+                Some(b) => run_trial_batched(b, t, &contact, &hand),
+                None => run_trial_single(model, t, &contact, &hand),
+            };
+            Ok(Some(WindowedRun {
+                trial: t.id.clone(),
+                failure: t.outcome == Outcome::Failure,
+                window,
+                step_ms: 1000.0 / t.rate_hz as f64,
+                run,
+            }))
+        })
+        .collect();
+    runs.into_iter().filter_map(Result::transpose).collect()
 }
 
 /// The operating curve over `thresholds` × `raise_after` (the hand's clear_after and k kept).

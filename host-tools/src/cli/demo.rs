@@ -11,7 +11,7 @@ use slipguard_core::blob::AlignedBlob;
 use slipguard_core::model::Model;
 use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
 use slipguard_learn::evaluation::{
-    Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, quant_p_q15, row_markdown,
+    Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, quant_p_q15_many, row_markdown,
     sim_force_sequences, sim_suction_sequences,
 };
 
@@ -54,9 +54,10 @@ fn run_blob(
         .map_err(|e| anyhow::anyhow!("{name}: blob does not parse: {e:?}"))?;
     let d = model.decision();
     let refs: Vec<&Sequence> = seqs.iter().collect();
-    let preds: Vec<_> = refs
+    let samples: Vec<&[f32]> = refs.iter().map(|s| s.cs.samples.as_slice()).collect();
+    let preds: Vec<_> = quant_p_q15_many(&model, &samples)
         .iter()
-        .map(|s| decide(d, &quant_p_q15(&model, &s.cs.samples)))
+        .map(|p| decide(d, p))
         .collect();
     let (dir, n) = plots;
     let mut idx: Vec<usize> = (0..refs.len()).collect();

@@ -3,6 +3,7 @@
 //! an `Args` struct and `run(args) -> anyhow::Result<()>`, and one variant below.
 
 mod baselines;
+mod bench_host;
 mod check;
 mod closed_loop;
 mod dataset;
@@ -74,6 +75,11 @@ pub enum Command {
     /// Run the shipped models through the bit-exact core on real and simulated data (README's main command).
     #[command(after_help = "Example:\n  slipguard demo --out out/demo")]
     Demo(demo::Args),
+    /// Host throughput of the bit-exact core: batched vs single-step path (and PyTorch), in channel-steps/s.
+    #[command(
+        after_help = "Examples:\n  slipguard bench-host\n  slipguard bench-host --run-torch\n  slipguard bench-host --seconds 0.2 --batch 16,256 --torch out/torch.json"
+    )]
+    BenchHost(bench_host::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -88,6 +94,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => train::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Demo(a) => demo::run(a),
+        Command::BenchHost(a) => bench_host::run(a),
     }
 }
 

@@ -202,7 +202,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let trials = load_trials(&a.trial, a.rate)?;
     if trials.len() == 1 {
         let (out, png) = (a.out.clone(), a.png.clone());
-        return run_one(&a, &trials[0], out.as_deref(), png.as_deref());
+        let mut log = Log::Direct;
+        return run_one(&a, &trials[0], out.as_deref(), png.as_deref(), &mut log);
     }
     if a.port.is_some() {
         bail!(
@@ -220,12 +221,50 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    for t in &trials {
-        let out = a.out.as_ref().map(|d| d.join(format!("{}.bin", t.id)));
-        let png = a.png.as_ref().map(|d| d.join(format!("{}.png", t.id)));
-        run_one(&a, t, out.as_deref(), png.as_deref())?;
+    // The trials in parallel (rayon), each through the firmware's own path; their messages
+    // are printed in the trials' order and the first trial in error stops the output there,
+    // as a sequential run would.
+    use rayon::prelude::*;
+    let runs: Vec<(Vec<String>, anyhow::Result<()>)> = trials
+        .par_iter()
+        .map(|t| {
+            let out = a.out.as_ref().map(|d| d.join(format!("{}.bin", t.id)));
+            let png = a.png.as_ref().map(|d| d.join(format!("{}.png", t.id)));
+            let mut log = Log::Buffered(Vec::new());
+            let r = run_one(&a, t, out.as_deref(), png.as_deref(), &mut log);
+            (log.into_lines(), r)
+        })
+        .collect();
+    for (lines, r) in runs {
+        for l in lines {
+            eprintln!("{l}");
+        }
+        r?;
     }
     Ok(())
+}
+
+/// Where a replay's messages go: straight to stderr (one trial), or kept for printing in
+/// order (a folder's trials run in parallel).
+enum Log {
+    Direct,
+    Buffered(Vec<String>),
+}
+
+impl Log {
+    fn line(&mut self, l: String) {
+        match self {
+            Log::Direct => eprintln!("{l}"),
+            Log::Buffered(v) => v.push(l),
+        }
+    }
+
+    fn into_lines(self) -> Vec<String> {
+        match self {
+            Log::Direct => Vec::new(),
+            Log::Buffered(v) => v,
+        }
+    }
 }
 
 fn run_one(
@@ -233,6 +272,7 @@ fn run_one(
     trial: &Trial,
     out_path: Option<&Path>,
     png: Option<&Path>,
+    log: &mut Log,
 ) -> anyhow::Result<()> {
     let trial = trial.clone();
     let profile = match a.profile {
@@ -286,12 +326,12 @@ fn run_one(
     }
     let (blob, _) = check::load_model("replay", &model, &profile, a.allow_bad_model)?;
     if let Some(note) = in_sample_note(&model, &a.trial, &trial) {
-        eprintln!("replay: note: {note}");
+        log.line(format!("replay: note: {note}"));
     }
     let rate_mhz = match replay::check_rate(&trial, blob.as_bytes()) {
         Ok(r) => r.unwrap_or(profile.default_rate_mhz()),
         Err(e) if a.any_rate => {
-            eprintln!("replay: warning: {e}");
+            log.line(format!("replay: warning: {e}"));
             (trial.rate_hz * 1000.0).round() as u32
         }
         Err(e) => bail!("{e} (use --any-rate to replay anyway)"),
@@ -352,7 +392,7 @@ fn run_one(
         .iter()
         .filter(|f| matches!(f.msg, Message::Fault(_)))
         .count();
-    eprintln!(
+    log.line(format!(
         "replay: {} ({} steps, {} Hz) with {}: {} frames ({} flags, {} faults), {} bytes",
         trial.id,
         trial.n_steps(),
@@ -362,7 +402,7 @@ fn run_one(
         n_flags,
         n_faults,
         out.wire.len()
-    );
+    ));
     match out_path {
         Some(p) if p == Path::new("-") => std::io::stdout().write_all(&out.wire)?,
         Some(p) => {
@@ -379,7 +419,7 @@ fn run_one(
             model.file_name().unwrap_or_default().to_string_lossy()
         );
         replay::plot_fig8(&trial, &flags, a.plot_channel, &title, png)?;
-        eprintln!("replay: plot {}", png.display());
+        log.line(format!("replay: plot {}", png.display()));
     }
     if let Some(name) = &a.port {
         let mut port = serialport::new(name, a.baud)
