@@ -346,6 +346,7 @@ fn every_subcommand_help_has_an_example_and_documents_every_option() {
         &["train"],
         &["eval"],
         &["demo"],
+        &["bench-host"],
     ];
     for sub in subs {
         let out = slipguard().args(*sub).arg("--help").output().unwrap();

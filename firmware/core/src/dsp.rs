@@ -1900,12 +1900,85 @@ pub fn batch_cell_update_portable(
 #[cfg(all(feature = "std", target_arch = "x86_64"))]
 mod x86 {
     use super::{BATCH_TILE_LANES, BATCH_TILE_ROWS};
+    use crate::activation::IntervalTable;
     use core::arch::x86_64::{
-        __m256i, _mm256_add_epi32, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_set1_epi32,
-        _mm256_setzero_si256, _mm256_storeu_si256,
+        __m128i, __m256i, _mm_cvtsi32_si128, _mm_loadu_si128, _mm_storeu_si128, _mm256_add_epi32,
+        _mm256_add_epi64, _mm256_and_si256, _mm256_blend_epi32, _mm256_blendv_epi8,
+        _mm256_castsi256_si128, _mm256_cvtepi16_epi32, _mm256_extracti128_si256,
+        _mm256_i32gather_epi64, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_max_epi32,
+        _mm256_min_epi32, _mm256_mul_epi32, _mm256_mullo_epi32, _mm256_or_si256,
+        _mm256_packs_epi32, _mm256_permute2x128_si256, _mm256_permute4x64_epi64,
+        _mm256_permutevar8x32_epi32, _mm256_set1_epi32, _mm256_setr_epi32, _mm256_setzero_si256,
+        _mm256_sll_epi32, _mm256_sra_epi32, _mm256_srai_epi32, _mm256_srli_epi64,
+        _mm256_storeu_si256,
     };
 
-    /// [`super::batch_gate_rows_portable`] compiled for AVX2.
+    /// 8 lanes of `table` lookups ([`crate::activation::lookup`]) at the Q3.12 inputs `x`
+    /// (i32 lanes within the i16 range): interval k = (x >> 7) + 256 (0..=511), position
+    /// x & 127, `(lo·2^7 + 2^6 + (hi − lo)·pos) >> 7`. Each interval's two words come as one
+    /// 64-bit element: two 4-element gathers (cheaper than two 8-element ones of 32 bits),
+    /// then split into the first and second words.
+    #[target_feature(enable = "avx2")]
+    fn lookup8(table: &IntervalTable, x: __m256i) -> __m256i {
+        let k = _mm256_add_epi32(_mm256_srai_epi32::<7>(x), _mm256_set1_epi32(256));
+        let pos = _mm256_and_si256(x, _mm256_set1_epi32(127));
+        let base = table.as_ptr() as *const i64;
+        // SAFETY: k is in 0..=511 for every i16 input, so each 8-byte element k lies inside
+        // the table's 512 entries of [i32; 2] (`table` is a whole IntervalTable); AVX2 is on.
+        let (lo, hi) = unsafe {
+            (
+                _mm256_i32gather_epi64::<8>(base, _mm256_castsi256_si128(k)),
+                _mm256_i32gather_epi64::<8>(base, _mm256_extracti128_si256::<1>(k)),
+            )
+        };
+        // [a0 d0 a1 d1 | a2 d2 a3 d3] → [a0 a1 a2 a3 | d0 d1 d2 d3], then the halves joined.
+        let split = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
+        let (lo, hi) = (
+            _mm256_permutevar8x32_epi32(lo, split),
+            _mm256_permutevar8x32_epi32(hi, split),
+        );
+        let a = _mm256_permute2x128_si256::<0x20>(lo, hi);
+        let d = _mm256_permute2x128_si256::<0x31>(lo, hi);
+        _mm256_srai_epi32::<7>(_mm256_add_epi32(a, _mm256_mullo_epi32(d, pos)))
+    }
+
+    /// sat16 of i32 lanes, still as i32 lanes.
+    #[target_feature(enable = "avx2")]
+    fn sat16(v: __m256i) -> __m256i {
+        _mm256_max_epi32(
+            _mm256_min_epi32(v, _mm256_set1_epi32(i16::MAX as i32)),
+            _mm256_set1_epi32(i16::MIN as i32),
+        )
+    }
+
+    /// 8 i16 from `s` (at least 8 long) as i32 lanes.
+    #[target_feature(enable = "avx2")]
+    fn load_i16x8(s: &[i16]) -> __m256i {
+        assert!(s.len() >= 8);
+        // SAFETY: 16 bytes inside `s` (checked above), unaligned load.
+        _mm256_cvtepi16_epi32(unsafe { _mm_loadu_si128(s.as_ptr() as *const __m128i) })
+    }
+
+    /// The 8 i32 lanes of `v` (within the i16 range) into `d[..8]`.
+    #[target_feature(enable = "avx2")]
+    fn store_i16x8(d: &mut [i16], v: __m256i) {
+        assert!(d.len() >= 8);
+        // packs: [v0..3, v0..3 | v4..7, v4..7]; qwords 0 and 2 hold v0..7 in order.
+        let p = _mm256_permute4x64_epi64::<0b1000>(_mm256_packs_epi32(v, v));
+        // SAFETY: 16 bytes inside `d` (checked above), unaligned store.
+        unsafe { _mm_storeu_si128(d.as_mut_ptr() as *mut __m128i, _mm256_castsi256_si128(p)) };
+    }
+
+    /// [`super::batch_gate_rows_portable`] with 8 lanes per pass: the requantisation of
+    /// `lstm::requant`'s fast form (shift 33..=62: z = 2^k·2^32 + acc_x·mx + acc_h·mh, its
+    /// high word >> (k + 1), + bias, sat16) with VPMULDQ on the even and odd lanes, then the
+    /// table lookup by gather. Rows of the wide form, and the lanes past the last 8, run the
+    /// portable code.
+    ///
+    /// The bias is added without saturation after clamping it to ±2^30: the high word is
+    /// below 2^30 in magnitude (|z| < 2^61 plus the half, see `lstm::requant`), so after the
+    /// shift |t| < 2^29, t + bias cannot wrap, and any bias beyond ±2^30 saturates the i16
+    /// result either way: the same number as the saturating add.
     #[target_feature(enable = "avx2")]
     pub(super) fn gate_rows_avx2(
         acc_x: &[i32],
@@ -1915,10 +1988,56 @@ mod x86 {
         lanes: usize,
         gates: &mut [i16],
     ) {
-        super::batch_gate_rows_portable(acc_x, acc_h, rows, hn, lanes, gates)
+        let (sig, tanh) = (super::interval_table(false), super::interval_table(true));
+        let n8 = lanes / 8 * 8;
+        for (r, p) in rows.iter().enumerate() {
+            let table = if (2 * hn..3 * hn).contains(&r) {
+                tanh
+            } else {
+                sig
+            };
+            let span = r * lanes..(r + 1) * lanes;
+            let (Some(g), Some(a), Some(b)) = (
+                gates.get_mut(span.clone()),
+                acc_x.get(span.clone()),
+                acc_h.get(span),
+            ) else {
+                return;
+            };
+            let k = (p.shift as u32).wrapping_sub(33);
+            let done = if k < 30 { n8 } else { 0 };
+            let mx = _mm256_set1_epi32(p.mx);
+            let mh = _mm256_set1_epi32(p.mh);
+            let half = _mm256_set1_epi32(1 << (k & 31));
+            let cnt = _mm_cvtsi32_si128((k + 1) as i32);
+            let bias = _mm256_set1_epi32(p.bias_q12.clamp(-(1 << 30), 1 << 30));
+            for i in (0..done).step_by(8) {
+                // SAFETY: i + 8 ≤ n8 ≤ lanes = a.len() = b.len(); unaligned loads.
+                let (ax, ah) = unsafe {
+                    (
+                        _mm256_loadu_si256(a.as_ptr().add(i) as *const __m256i),
+                        _mm256_loadu_si256(b.as_ptr().add(i) as *const __m256i),
+                    )
+                };
+                let even = _mm256_add_epi64(_mm256_mul_epi32(ax, mx), _mm256_mul_epi32(ah, mh));
+                let (axo, aho) = (_mm256_srli_epi64::<32>(ax), _mm256_srli_epi64::<32>(ah));
+                let odd = _mm256_add_epi64(_mm256_mul_epi32(axo, mx), _mm256_mul_epi32(aho, mh));
+                // High words: the even lanes' moved down, the odd lanes' in place.
+                let hi = _mm256_blend_epi32::<0b1010_1010>(_mm256_srli_epi64::<32>(even), odd);
+                let t = _mm256_sra_epi32(_mm256_add_epi32(hi, half), cnt);
+                let z = sat16(_mm256_add_epi32(t, bias));
+                store_i16x8(&mut g[i..], lookup8(table, z));
+            }
+            for ((g, &a), &b) in g.iter_mut().zip(a).zip(b).skip(done) {
+                *g = crate::activation::lookup(table, crate::lstm::requant(p, a, b));
+            }
+        }
     }
 
-    /// [`super::batch_cell_update_portable`] compiled for AVX2.
+    /// [`super::batch_cell_update_portable`] with 8 lanes per pass (`lstm::cell_unit`'s
+    /// arithmetic in i32 lanes: every product of two i16 and its rounding half fit, see there;
+    /// the cell → Q3.12 conversion in its `q_mul`/`q_add` form; tanh by gather); the lanes past
+    /// the last 8 run the portable code.
     #[target_feature(enable = "avx2")]
     #[allow(clippy::too_many_arguments)]
     pub(super) fn cell_update_avx2(
@@ -1932,7 +2051,88 @@ mod x86 {
         stride: usize,
         c0: usize,
     ) {
-        super::batch_cell_update_portable(gates, hn, lanes, k, on, h, c, stride, c0)
+        let n8 = lanes / 8 * 8;
+        let tanh = super::interval_table(true);
+        let round15 = _mm256_set1_epi32(1 << 14);
+        let ig_half = _mm256_set1_epi32(k.ig_half);
+        let ig_cnt = _mm_cvtsi32_si128(k.ig_shift as i32);
+        let (q_mul, q_add) = (_mm256_set1_epi32(k.q_mul), _mm256_set1_epi32(k.q_add));
+        let gate = |g: usize, j: usize| gates.get((g * hn + j) * lanes..(g * hn + j + 1) * lanes);
+        for p in 0..hn.div_ceil(2) {
+            let Some(hw) = h.get_mut(p * stride + c0..p * stride + c0 + lanes) else {
+                return;
+            };
+            for u in 0..2 {
+                let j = 2 * p + u;
+                if j >= hn {
+                    break;
+                }
+                let (Some(gi), Some(gf), Some(gg), Some(go), Some(cj), Some(on)) = (
+                    gate(0, j),
+                    gate(1, j),
+                    gate(2, j),
+                    gate(3, j),
+                    c.get_mut(j * stride + c0..j * stride + c0 + lanes),
+                    on.get(..lanes),
+                ) else {
+                    return;
+                };
+                let keep = _mm256_set1_epi32(!(0xffff_u32 << (16 * u)) as i32);
+                let up = _mm_cvtsi32_si128(16 * u as i32);
+                for i in (0..n8).step_by(8) {
+                    let (vi, vf) = (load_i16x8(&gi[i..]), load_i16x8(&gf[i..]));
+                    let (vg, vo) = (load_i16x8(&gg[i..]), load_i16x8(&go[i..]));
+                    let cv = load_i16x8(&cj[i..]);
+                    let fc = _mm256_srai_epi32::<15>(_mm256_add_epi32(
+                        _mm256_mullo_epi32(vf, cv),
+                        round15,
+                    ));
+                    let ig = _mm256_sra_epi32(
+                        _mm256_add_epi32(_mm256_mullo_epi32(vi, vg), ig_half),
+                        ig_cnt,
+                    );
+                    let cn = sat16(_mm256_add_epi32(fc, ig));
+                    let cq = sat16(_mm256_srai_epi32::<3>(_mm256_add_epi32(
+                        _mm256_mullo_epi32(cn, q_mul),
+                        q_add,
+                    )));
+                    let th = lookup8(tanh, cq);
+                    let hv = sat16(_mm256_srai_epi32::<15>(_mm256_add_epi32(
+                        _mm256_mullo_epi32(vo, th),
+                        round15,
+                    )));
+                    // The lanes that step: on[i] as all-ones lanes.
+                    let mut m = [0i32; 8];
+                    for (m, &o) in m.iter_mut().zip(&on[i..i + 8]) {
+                        *m = -(o as i32);
+                    }
+                    // SAFETY: 32 bytes of the local array `m`, unaligned load.
+                    let mask = unsafe { _mm256_loadu_si256(m.as_ptr() as *const __m256i) };
+                    store_i16x8(&mut cj[i..], _mm256_blendv_epi8(cv, cn, mask));
+                    let w = &mut hw[i..i + 8];
+                    // SAFETY: 32 bytes inside `w` (8 words), unaligned load and store.
+                    unsafe {
+                        let old = _mm256_loadu_si256(w.as_ptr() as *const __m256i);
+                        let bits =
+                            _mm256_sll_epi32(_mm256_and_si256(hv, _mm256_set1_epi32(0xffff)), up);
+                        let new = _mm256_or_si256(_mm256_and_si256(old, keep), bits);
+                        _mm256_storeu_si256(
+                            w.as_mut_ptr() as *mut __m256i,
+                            _mm256_blendv_epi8(old, new, mask),
+                        );
+                    }
+                }
+                let shift = 16 * u as u32;
+                for i in n8..lanes {
+                    let (mut cn, mut hv) = (cj[i], 0i16);
+                    crate::lstm::cell_unit(k, [gi[i], gf[i], gg[i], go[i]], &mut cn, &mut hv);
+                    if on[i] {
+                        cj[i] = cn;
+                        hw[i] = (hw[i] & !(0xffff << shift)) | (hv as u16 as u32) << shift;
+                    }
+                }
+            }
+        }
     }
 
     /// [`super::batch_pair_sums`] over rows `..rows` (a multiple of [`BATCH_TILE_ROWS`]) and
