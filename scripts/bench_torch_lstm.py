@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """PyTorch's offline throughput for the network `slipguard bench-host` measures.
 
-Variant (c) of the paper at hidden 128: nn.LSTM(input 12 = force + d(t) + 10 STFT bands,
+Variant (c) of the paper at hidden 128: nn.LSTM(input 11 = force + 10 STFT bands,
 hidden 128), then nn.Linear(128, 2) and softmax, float32 on the CPU, the whole sequence in
 one call (offline: PyTorch's fastest mode, the batch and time steps in one tensor). The STFT
 front end is not included (the slipguard figures include it). Per batch size B and thread
@@ -39,9 +39,10 @@ def main():
     ap.add_argument("--batch", default="1,16,256,4096", help="batch sizes, comma-separated")
     ap.add_argument("--threads", default="1,2", help="thread counts, comma-separated")
     ap.add_argument("--seconds", type=float, default=1.0, help="seconds per measurement")
-    ap.add_argument("--inputs", type=int, default=12, help="LSTM input size")
+    ap.add_argument("--inputs", type=int, default=11, help="LSTM input size (force + 10 bands)")
     ap.add_argument("--hidden", type=int, default=128, help="LSTM hidden size")
     ap.add_argument("--out", required=True, help="JSON result file")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines")
     a = ap.parse_args()
     torch.manual_seed(0)
     lstm = torch.nn.LSTM(a.inputs, a.hidden).eval()
@@ -52,7 +53,8 @@ def main():
             torch.set_num_threads(t)
             r = measure(lstm, head, b, a.inputs, a.seconds)
             results.append({"batch": b, "threads": t, "channel_steps_per_s": r})
-            print(f"torch nn.LSTM batch {b:>4}, {t} thread(s): {r:12.0f} channel-steps/s")
+            if not a.quiet:
+                print(f"torch nn.LSTM batch {b:>4}, {t} thread(s): {r:12.0f} channel-steps/s")
     with open(a.out, "w") as f:
         json.dump(
             {

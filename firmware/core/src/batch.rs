@@ -28,7 +28,7 @@ use crate::decision::{ContactConfig, ContactEdge, ContactState, DecisionConfig, 
 use crate::dsp::{
     BATCH_TILE_LANES, BATCH_TILE_ROWS, batch_cell_update, batch_gate_rows, batch_pair_sums,
 };
-use crate::features::stft::StftPlan;
+use crate::features::stft::{StftLanes, StftPlan, StftState};
 use crate::features::{FeatureLayout, FeatureState, normalise, raw_features};
 use crate::fixed::{round_shift_i64, sat_i16_wide};
 use crate::lstm::{CellShifts, LstmState};
@@ -256,6 +256,7 @@ impl<'a> BatchModel<'a> {
             lanes,
             stride,
             features: vec![FeatureState::new(); lanes],
+            stft: vec![StftState::new(); lanes],
             decision: vec![DecisionState::default(); lanes],
             contact: vec![ContactState::new(); lanes],
             lstm,
@@ -275,6 +276,8 @@ impl<'a> BatchModel<'a> {
                 acc_h: vec![0; rows * CHUNK_LANES],
                 gates: vec![0; rows * CHUNK_LANES],
                 on: vec![false; CHUNK_LANES],
+                stft: StftLanes::new(CHUNK_LANES),
+                bands: vec![0; crate::features::MAX_BANDS * CHUNK_LANES],
                 dense: vec![0; BATCH_TILE_ROWS * CHUNK_LANES],
                 logits: vec![[0; 2]; CHUNK_LANES],
             },
@@ -362,6 +365,7 @@ impl<'a> BatchModel<'a> {
             lanes,
             stride,
             features,
+            stft,
             decision,
             lstm,
             x_q15,
@@ -384,20 +388,38 @@ impl<'a> BatchModel<'a> {
             if !s.on[..cl].iter().any(|&a| a) {
                 continue;
             }
-            // The front end, lane by lane (the single path's code).
+            // The front end: force and d(t) lane by lane (the single path's code), the STFT
+            // bands of the chunk's lanes at once (`StftPlan::step_lanes`, the same numbers),
+            // then the normalisation lane by lane.
             for i in 0..cl {
-                let v = &mut s.feats[i];
-                *v = [0; MAX_INPUT];
+                s.feats[i] = [0; MAX_INPUT];
                 if s.on[i] {
                     let g = c0 + i;
                     raw_features(
                         self.layout,
-                        self.plan.as_ref(),
+                        None,
                         &mut features[g],
                         x_q15[g],
-                        v,
+                        &mut s.feats[i],
                     );
-                    normalise(norm, &mut v[..n]);
+                }
+            }
+            if let Some(plan) = &self.plan {
+                // Lanes past the batch's (padding) are off: m ≤ cl lanes take part.
+                let m = lanes.min(c0 + cl).saturating_sub(c0);
+                let first = self.layout.force as usize + self.layout.diff as usize;
+                let bands = &mut s.bands[..self.layout.bands * m];
+                let (st, x) = (&mut stft[c0..c0 + m], &x_q15[c0..c0 + m]);
+                plan.step_lanes(&mut s.stft, st, x, &s.on[..m], bands);
+                for b in 0..self.layout.bands.min(MAX_INPUT.saturating_sub(first)) {
+                    for i in 0..m {
+                        s.feats[i][first + b] = bands[b * m + i];
+                    }
+                }
+            }
+            for i in 0..cl {
+                if s.on[i] {
+                    normalise(norm, &mut s.feats[i][..n]);
                 }
             }
             s.logits[..cl].fill([0; 2]);
@@ -490,6 +512,9 @@ struct Scratch {
     gates: Vec<i16>,
     /// The chunk's lanes that step.
     on: Vec<bool>,
+    stft: StftLanes,
+    /// The chunk's band magnitudes, `bands[b·lanes + i]`.
+    bands: Vec<i16>,
     dense: Vec<i32>,
     logits: Vec<[i64; 2]>,
 }
@@ -501,7 +526,10 @@ pub struct BatchState {
     lanes: usize,
     /// Lanes rounded up to whole kernel tiles: the row stride of the lane arrays.
     stride: usize,
+    /// Previous samples (the STFT part of each is unused: see `stft`).
     features: Vec<FeatureState>,
+    /// The STFT windows, apart so that a chunk's lanes are one slice.
+    stft: Vec<StftState>,
     decision: Vec<DecisionState>,
     contact: Vec<ContactState>,
     lstm: Vec<LaneLstm>,
@@ -531,6 +559,7 @@ impl BatchState {
             return;
         }
         self.features[l] = FeatureState::new();
+        self.stft[l] = StftState::new();
         self.decision[l] = DecisionState::default();
         let stride = self.stride;
         for k in &mut self.lstm {
@@ -565,6 +594,7 @@ impl BatchState {
         }
         let mut st = ChannelState::new();
         st.features = self.features[l].clone();
+        st.features.stft = self.stft[l].clone();
         st.decision = self.decision[l];
         st.contact = self.contact[l];
         for (k, s) in self.lstm.iter().zip(st.lstm.iter_mut()) {

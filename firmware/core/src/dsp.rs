@@ -1897,6 +1897,31 @@ pub fn batch_cell_update_portable(
     }
 }
 
+/// One STFT time step of one bin for many lanes (host, `std`): `re[i] += xw[i]·c`,
+/// `im[i] += xw[i]·s` in i64 (Q2.30 × Q1.15; exact, see `StftPlan::step`). With AVX2
+/// (detected at run time) the same code compiled for AVX2 (VPMULDQ, four lanes a register).
+#[cfg(feature = "std")]
+pub fn stft_bin_sums(xw: &[i32], c: i16, s: i16, re: &mut [i64], im: &mut [i64]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is present (detected above); the function is safe code compiled for it.
+        unsafe { x86::stft_bin_sums_avx2(xw, c, s, re, im) };
+        return;
+    }
+    stft_bin_sums_portable(xw, c, s, re, im);
+}
+
+/// The code of [`stft_bin_sums`] (inlined into each target's copy).
+#[cfg(feature = "std")]
+#[inline(always)]
+pub fn stft_bin_sums_portable(xw: &[i32], c: i16, s: i16, re: &mut [i64], im: &mut [i64]) {
+    let (c, s) = (i64::from(c), i64::from(s));
+    for ((&v, r), m) in xw.iter().zip(re.iter_mut()).zip(im.iter_mut()) {
+        *r += i64::from(v) * c;
+        *m += i64::from(v) * s;
+    }
+}
+
 #[cfg(all(feature = "std", target_arch = "x86_64"))]
 mod x86 {
     use super::{BATCH_TILE_LANES, BATCH_TILE_ROWS};
@@ -2133,6 +2158,12 @@ mod x86 {
                 }
             }
         }
+    }
+
+    /// [`super::stft_bin_sums_portable`] compiled for AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn stft_bin_sums_avx2(xw: &[i32], c: i16, s: i16, re: &mut [i64], im: &mut [i64]) {
+        super::stft_bin_sums_portable(xw, c, s, re, im)
     }
 
     /// [`super::batch_pair_sums`] over rows `..rows` (a multiple of [`BATCH_TILE_ROWS`]) and

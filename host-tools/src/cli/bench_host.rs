@@ -151,7 +151,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     let torch = if a.run_torch {
-        Some(run_torch_script(&a)?)
+        let cfg = model.config();
+        let inputs = cfg.lstm_inputs(0);
+        if cfg.variant.lstm_count() != 1 {
+            bail!("--run-torch measures one nn.LSTM: give a model with one LSTM");
+        }
+        Some(run_torch_script(&a, inputs, cfg.hidden[0] as usize)?)
     } else {
         a.torch.as_deref().map(read_torch).transpose()?
     };
@@ -249,8 +254,8 @@ fn read_torch(p: &Path) -> anyhow::Result<TorchFile> {
 }
 
 /// Runs scripts/bench_torch_lstm.py (from the current folder or the repository) with the
-/// same batches, threads and duration.
-fn run_torch_script(a: &Args) -> anyhow::Result<TorchFile> {
+/// same batches, threads and duration, for the model's input and hidden sizes.
+fn run_torch_script(a: &Args, inputs: usize, hidden: usize) -> anyhow::Result<TorchFile> {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let script = ["scripts/bench_torch_lstm.py"]
         .iter()
@@ -269,6 +274,13 @@ fn run_torch_script(a: &Args) -> anyhow::Result<TorchFile> {
         .arg(&script)
         .args(["--batch", &join(&a.batch), "--threads", &join(&a.threads)])
         .args(["--seconds", &a.seconds.to_string()])
+        .args([
+            "--inputs",
+            &inputs.to_string(),
+            "--hidden",
+            &hidden.to_string(),
+        ])
+        .arg("--quiet")
         .arg("--out")
         .arg(&out)
         .status()

@@ -385,6 +385,106 @@ impl StftPlan {
     }
 }
 
+/// Working buffers of [`StftPlan::step_lanes`] for up to `lanes` lanes (host, `std`).
+#[cfg(feature = "std")]
+#[derive(Clone, Debug)]
+pub struct StftLanes {
+    /// Windowed samples, oldest first, Q2.30: `xw[n·lanes + i]`.
+    xw: Vec<i32>,
+    /// One bin's accumulators per lane, Q3.45.
+    re: Vec<i64>,
+    im: Vec<i64>,
+    lanes: usize,
+}
+
+#[cfg(feature = "std")]
+impl StftLanes {
+    /// Buffers for up to `lanes` lanes.
+    pub fn new(lanes: usize) -> Self {
+        Self {
+            xw: vec![0; MAX_WINDOW * lanes],
+            re: vec![0; lanes],
+            im: vec![0; lanes],
+            lanes,
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl StftPlan {
+    /// [`StftPlan::step`] of many channels at once (the batched host path): lane i with
+    /// `on[i]` pushes `x[i]` into `states[i]`, and bin b's magnitude goes to
+    /// `out[b·n + i]` (n = `on.len()`, at most the buffers' lanes); lanes not `on` keep their
+    /// state and get 0. The same numbers as [`StftPlan::step`]: the same windowed samples, and
+    /// per bin the same exact i64 sums (|sum| < 2^51), here with the lanes innermost so that
+    /// one twiddle meets every lane ([`crate::dsp::stft_bin_sums`]), then the same magnitude.
+    pub fn step_lanes(
+        &self,
+        buf: &mut StftLanes,
+        states: &mut [StftState],
+        x: &[i16],
+        on: &[bool],
+        out: &mut [i16],
+    ) {
+        let lanes = on.len().min(buf.lanes).min(states.len()).min(x.len());
+        let n = usize::from(self.config.window_len);
+        let bins = usize::from(self.config.n_bins);
+        let xw = &mut buf.xw[..n * lanes];
+        for i in 0..lanes {
+            if !on[i] {
+                for k in 0..n {
+                    xw[k * lanes + i] = 0;
+                }
+                continue;
+            }
+            // The ring as in `step`.
+            let state = &mut states[i];
+            let mut head = usize::from(state.head);
+            if head >= n {
+                head = 0;
+            }
+            if let Some(slot) = state.samples.get_mut(head) {
+                *slot = x[i];
+            }
+            head += 1;
+            if head >= n {
+                head = 0;
+            }
+            state.head = head as u8;
+            let (newer, older) = state.samples[..n].split_at(head);
+            for (k, (&smp, &w)) in older.iter().chain(newer).zip(&self.window).enumerate() {
+                xw[k * lanes + i] = round_shift_i64(i64::from(smp) * i64::from(w), 15) as i32;
+            }
+        }
+        for (b, k) in (usize::from(self.config.first_bin)..)
+            .take(bins)
+            .enumerate()
+        {
+            let (re, im) = (&mut buf.re[..lanes], &mut buf.im[..lanes]);
+            re.fill(0);
+            im.fill(0);
+            let mut m = 0usize;
+            for t in 0..n {
+                let (c, s) = self.twiddles.get(m).copied().unwrap_or((0, 0));
+                crate::dsp::stft_bin_sums(&xw[t * lanes..(t + 1) * lanes], c, s, re, im);
+                m += k;
+                if m >= n {
+                    m -= n;
+                }
+            }
+            if let Some(o) = out.get_mut(b * lanes..(b + 1) * lanes) {
+                for i in 0..lanes {
+                    o[i] = if on[i] {
+                        self.magnitude(re[i], im[i])
+                    } else {
+                        0
+                    };
+                }
+            }
+        }
+    }
+}
+
 /// Per-channel STFT state: the last `window_len` input samples.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct StftState {
