@@ -352,9 +352,9 @@ impl<'a> BatchModel<'a> {
             };
         }
         self.step_active(st);
-        for l in 0..n {
-            if st.active[l] {
-                out[l].step = Some(st.out[l]);
+        for ((o, &on), s) in out.iter_mut().zip(&st.active).zip(&st.out).take(n) {
+            if on {
+                o.step = Some(*s);
             }
         }
     }

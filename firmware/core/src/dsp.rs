@@ -22,6 +22,14 @@
 //!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
 //!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
 //! - [`permute_q15_uninit`]: [`permute_q15`] into uninitialised memory (PKHBT/PKHTB).
+//! - Host only (`std`), for the batched path [`crate::batch`]: [`batch_pair_sums`] (the
+//!   LSTM's and the dense layer's sums for many channels: i16-pair weights × lane-contiguous
+//!   activations, VPMADDWD tiles of 6 or 4 rows × 16 lanes), [`batch_gate_rows`] and
+//!   [`batch_cell_update`] (the gate pass and the cell update, 8 lanes at a time with gathered
+//!   table lookups) and [`stft_bin_sums`], each an AVX2 path chosen at run time
+//!   (`is_x86_feature_detected!`) beside its portable reference (`*_portable`, what other
+//!   targets run). The portable pair-sum loop does not become VPMADDWD under LLVM (it gives
+//!   VPMULLD on widened lanes, about a third of the throughput), hence the intrinsics.
 //!
 //! The QEMU bench (`firmware/qemu-bench`) checks every assembly path against its reference.
 //!

@@ -1,0 +1,160 @@
+//! The batched path's kernels (`slipguard_core::dsp`, host): each run-time-chosen path (AVX2
+//! on this machine) against its portable reference, on random inputs over the admitted ranges,
+//! edge values and shapes with partial tiles. `batch_vs_single.rs` checks the whole batched
+//! step against the single path; these check the portable code other targets run, too.
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use slipguard_core::blob::LstmRowParams;
+use slipguard_core::dsp::{
+    batch_cell_update, batch_cell_update_portable, batch_gate_rows, batch_gate_rows_portable,
+    batch_pair_sums, batch_pair_sums_portable, stft_bin_sums, stft_bin_sums_portable,
+};
+use slipguard_core::lstm::CellShifts;
+
+fn pair(a: i16, b: i16) -> u32 {
+    a as u16 as u32 | (b as u16 as u32) << 16
+}
+
+#[test]
+fn pair_sums_equal_the_portable_sums() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    // (rows, pairs, lanes, extra stride): whole and partial tiles of 6 and 4 rows, 16 lanes.
+    for (rows, pairs, lanes, extra) in [
+        (512, 70, 64, 0),
+        (24, 7, 16, 5),
+        (20, 3, 37, 0),
+        (8, 64, 5, 11),
+        (4, 1, 16, 0),
+        (2, 9, 33, 2),
+        (36, 6, 48, 16),
+    ] {
+        let stride = lanes + extra;
+        // int8 weights (−128 included) as i16 pairs, activations over the whole i16 range.
+        let w: Vec<u32> = (0..rows * pairs)
+            .map(|_| pair(rng.random_range(-128..=127), rng.random_range(-128..=127)))
+            .collect();
+        let x: Vec<u32> = (0..pairs * stride)
+            .map(|k| match k % 97 {
+                0 => pair(i16::MIN, i16::MIN),
+                1 => pair(i16::MAX, i16::MIN),
+                _ => rng.random(),
+            })
+            .collect();
+        let mut fast = vec![0i32; rows * lanes];
+        let mut slow = vec![1i32; rows * lanes];
+        batch_pair_sums(&w, pairs, &x, stride, lanes, &mut fast);
+        batch_pair_sums_portable(&w, pairs, &x, stride, lanes, &mut slow);
+        assert_eq!(
+            fast, slow,
+            "rows {rows} pairs {pairs} lanes {lanes} stride {stride}"
+        );
+        // One cell by hand: the definition.
+        let (r, l) = (rows - 1, lanes - 1);
+        let want: i64 = (0..pairs)
+            .map(|p| {
+                let (a, b) = (w[r * pairs + p], x[p * stride + l]);
+                (a as u16 as i16 as i64) * (b as u16 as i16 as i64)
+                    + ((a >> 16) as u16 as i16 as i64) * ((b >> 16) as u16 as i16 as i64)
+            })
+            .sum();
+        assert_eq!(fast[r * lanes + l] as i64, want);
+    }
+}
+
+#[test]
+fn gate_rows_equal_the_portable_gate_rows() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    for (hn, lanes) in [(16, 64), (7, 19), (3, 8), (5, 5)] {
+        let rows = 4 * hn;
+        // Every shift 1..=62 (the wide form below 33), multipliers and biases over their
+        // ranges with edges, sums within the admitted bounds (x part < 2^26, h part < 2^29).
+        let params: Vec<LstmRowParams> = (0..rows)
+            .map(|r| LstmRowParams {
+                mx: rng.random_range(0..i32::MAX),
+                mh: rng.random_range(0..i32::MAX),
+                bias_q12: match r % 5 {
+                    0 => i32::MAX,
+                    1 => i32::MIN,
+                    2 => rng.random_range(-40_000..40_000),
+                    _ => rng.random(),
+                },
+                shift: if r % 3 == 0 {
+                    rng.random_range(1..=62)
+                } else {
+                    rng.random_range(33..=62)
+                },
+            })
+            .collect();
+        for round in 0..20 {
+            let ax: Vec<i32> = (0..rows * lanes)
+                .map(|k| {
+                    if k % 31 == round {
+                        -(1 << 26) + 1
+                    } else {
+                        rng.random_range(-(1 << 26)..(1 << 26))
+                    }
+                })
+                .collect();
+            let ah: Vec<i32> = (0..rows * lanes)
+                .map(|k| {
+                    if k % 29 == round {
+                        (1 << 29) - 1
+                    } else {
+                        rng.random_range(-(1 << 29)..(1 << 29))
+                    }
+                })
+                .collect();
+            let mut fast = vec![0i16; rows * lanes];
+            let mut slow = vec![1i16; rows * lanes];
+            batch_gate_rows(&ax, &ah, &params, hn, lanes, &mut fast);
+            batch_gate_rows_portable(&ax, &ah, &params, hn, lanes, &mut slow);
+            assert_eq!(fast, slow, "hn {hn} lanes {lanes} round {round}");
+        }
+    }
+}
+
+#[test]
+fn cell_updates_equal_the_portable_cell_updates() {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for (hn, lanes, stride, c0) in [
+        (16usize, 64, 80, 16),
+        (7, 19, 19, 0),
+        (3, 8, 24, 8),
+        (1, 5, 5, 0),
+    ] {
+        for cb in [1, 5, 11, 12, 13, 15] {
+            let k = CellShifts::new(cb);
+            // Gates over the whole i16 range (σ and tanh give less), some lanes off.
+            let gates: Vec<i16> = (0..4 * hn * lanes).map(|_| rng.random()).collect();
+            let on: Vec<bool> = (0..lanes).map(|i| i % 4 != 1).collect();
+            let h0: Vec<u32> = (0..hn.div_ceil(2) * stride).map(|_| rng.random()).collect();
+            let c_init: Vec<i16> = (0..hn * stride).map(|_| rng.random()).collect();
+            let (mut hf, mut cf) = (h0.clone(), c_init.clone());
+            let (mut hs, mut cs) = (h0.clone(), c_init.clone());
+            batch_cell_update(&gates, hn, lanes, k, &on, &mut hf, &mut cf, stride, c0);
+            batch_cell_update_portable(&gates, hn, lanes, k, &on, &mut hs, &mut cs, stride, c0);
+            assert_eq!(cf, cs, "c: hn {hn} lanes {lanes} C {cb}");
+            assert_eq!(hf, hs, "h: hn {hn} lanes {lanes} C {cb}");
+            assert_ne!(cf, c_init, "the update changed something");
+        }
+    }
+}
+
+#[test]
+fn stft_bin_sums_equal_the_portable_sums() {
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    for lanes in [64, 17, 3] {
+        let xw: Vec<i32> = (0..lanes)
+            .map(|_| rng.random_range(-(1 << 30)..=(1 << 30)))
+            .collect();
+        let (c, s) = (rng.random::<i16>(), i16::MIN);
+        let re0: Vec<i64> = (0..lanes)
+            .map(|_| rng.random_range(-(1 << 50)..(1 << 50)))
+            .collect();
+        let (mut rf, mut imf) = (re0.clone(), re0.clone());
+        let (mut rs, mut ims) = (re0.clone(), re0.clone());
+        stft_bin_sums(&xw, c, s, &mut rf, &mut imf);
+        stft_bin_sums_portable(&xw, c, s, &mut rs, &mut ims);
+        assert_eq!((rf, imf), (rs, ims), "lanes {lanes}");
+    }
+}
