@@ -268,7 +268,8 @@ impl Kind {
 }
 
 /// p(unstable) sequences of a model, float or quantized (`blob` = the quantized blob); the
-/// quantized ones through [`quant_p_q15_many`].
+/// quantized ones through [`quant_p_q15_many`], the float ones sequence by sequence in
+/// parallel (rayon; in the sequences' order).
 pub fn probabilities(
     model: &FloatModel,
     blob: &[u8],
@@ -276,10 +277,12 @@ pub fn probabilities(
     seqs: &[&Sequence],
 ) -> Result<Vec<Vec<i16>>> {
     Ok(match kind {
-        Kind::Float => seqs
-            .iter()
-            .map(|s| float_p_q15(model, &s.cs.samples))
-            .collect(),
+        Kind::Float => {
+            use rayon::prelude::*;
+            seqs.par_iter()
+                .map(|s| float_p_q15(model, &s.cs.samples))
+                .collect()
+        }
         Kind::Quantized => {
             let aligned = AlignedBlob::new(blob);
             let m = Model::from_bytes(aligned.as_bytes())?;
