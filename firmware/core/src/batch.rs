@@ -22,16 +22,18 @@
 use core::fmt;
 
 use crate::MAX_INPUT;
-use crate::activation::sigmoid;
-use crate::blob::{DenseRowParams, LstmRowParams, LstmTensors, pad4};
+use crate::activation;
+use crate::blob::{DenseRowParams, LstmTensors, pad4};
 use crate::decision::{ContactConfig, ContactEdge, ContactState, DecisionConfig, DecisionState};
+use crate::dsp::sigmoid;
 use crate::dsp::{
-    BATCH_TILE_LANES, BATCH_TILE_ROWS, batch_cell_update, batch_gate_rows, batch_pair_sums,
+    BATCH_TILE_LANES, BATCH_TILE_ROWS, LstmRowParams, batch_cell_update, batch_gate_row_fast,
+    batch_gate_rows, batch_pair_sums, interval_table,
 };
 use crate::features::stft::{StftLanes, StftPlan, StftState};
 use crate::features::{FeatureLayout, FeatureState, normalise, raw_features};
 use crate::fixed::{round_shift_i64, sat_i16_wide};
-use crate::lstm::{CellShifts, LstmState};
+use crate::lstm::{CellShifts, LstmState, cell_unit, requant};
 use crate::model::{ChannelState, GatedOutput, Model, StepOutput};
 
 /// Lanes per pass of a step: the chunk's gate sums (2 × 4H × 64 `i32`, 128 KiB for H = 128)
@@ -181,7 +183,7 @@ impl<'a> BatchModel<'a> {
     pub fn new(model: &Model<'a>) -> Result<Self, BatchError> {
         let blob = model.blob();
         let config = blob.config;
-        let layout = FeatureLayout::of(&config);
+        let layout = config.feature_layout();
         let plan = if config.variant.uses_bands() {
             StftPlan::new(config.stft).ok()
         } else {
@@ -478,9 +480,9 @@ impl<'a> BatchModel<'a> {
         batch_pair_sums(&pk.wh, pk.ph, &lk.h[c0..], stride, cl, ah);
         // Gate rows: requantisation and σ (rows i, f, o) or tanh (rows g, 2H..3H), Q0.15.
         let gates = &mut s.gates[..rows * cl];
-        batch_gate_rows(ax, ah, &pk.rows, hn, cl, gates);
+        gate_rows(ax, ah, &pk.rows, hn, cl, gates);
         // Cell update, unit by unit (lstm::cell_unit), the lanes `on` only.
-        batch_cell_update(
+        cell_update(
             gates,
             hn,
             cl,
@@ -491,6 +493,151 @@ impl<'a> BatchModel<'a> {
             stride,
             c0,
         );
+    }
+}
+
+/// The batched gate pass over `lanes` lanes: for row r and lane l,
+/// `gates[r·lanes + l] = f(requant(rows[r], acc_x[r·lanes + l], acc_h[r·lanes + l]))`, f = tanh
+/// for the cell-candidate rows `2·hn..3·hn` and σ for the others: the single path's gate pass
+/// (`lstm::gate_activations_portable`) with the lanes innermost, in
+/// [`crate::dsp::batch_gate_rows`] where it runs and here for the rest.
+pub fn gate_rows(
+    acc_x: &[i32],
+    acc_h: &[i32],
+    rows: &[LstmRowParams],
+    hn: usize,
+    lanes: usize,
+    gates: &mut [i16],
+) {
+    let done = batch_gate_rows(acc_x, acc_h, rows, hn, lanes, gates);
+    gate_rows_from(acc_x, acc_h, rows, hn, lanes, gates, done);
+}
+
+/// [`gate_rows`] all in Rust (what other targets run).
+pub fn gate_rows_portable(
+    acc_x: &[i32],
+    acc_h: &[i32],
+    rows: &[LstmRowParams],
+    hn: usize,
+    lanes: usize,
+    gates: &mut [i16],
+) {
+    gate_rows_from(acc_x, acc_h, rows, hn, lanes, gates, 0);
+}
+
+/// [`gate_rows`] for the lanes from `done` on in the fast rows, every lane in the others.
+fn gate_rows_from(
+    acc_x: &[i32],
+    acc_h: &[i32],
+    rows: &[LstmRowParams],
+    hn: usize,
+    lanes: usize,
+    gates: &mut [i16],
+    done: usize,
+) {
+    let (sig, tanh) = (interval_table(false), interval_table(true));
+    for (r, p) in rows.iter().enumerate() {
+        let table = if (2 * hn..3 * hn).contains(&r) {
+            tanh
+        } else {
+            sig
+        };
+        let from = if batch_gate_row_fast(p) { done } else { 0 };
+        let span = r * lanes + from..(r + 1) * lanes;
+        let (Some(g), Some(a), Some(b)) = (
+            gates.get_mut(span.clone()),
+            acc_x.get(span.clone()),
+            acc_h.get(span),
+        ) else {
+            return;
+        };
+        for ((g, &a), &b) in g.iter_mut().zip(a).zip(b) {
+            *g = activation::lookup(table, requant(p, a, b));
+        }
+    }
+}
+
+/// The batched cell update of the `lanes` lanes from lane `c0` of a state with row stride
+/// `stride`: for each unit j < `hn` and lane i, `lstm::cell_unit` from the gates
+/// `gates[(g·hn + j)·lanes + i]` (i, f, g, o) on `c[j·stride + c0 + i]`, c' written there and h'
+/// into the low (j even) or high (j odd) half of `h[(j / 2)·stride + c0 + i]`; lanes with
+/// `on[i]` false keep their c and h. In [`crate::dsp::batch_cell_update`] where it runs, here
+/// for the rest.
+#[allow(clippy::too_many_arguments)]
+pub fn cell_update(
+    gates: &[i16],
+    hn: usize,
+    lanes: usize,
+    k: CellShifts,
+    on: &[bool],
+    h: &mut [u32],
+    c: &mut [i16],
+    stride: usize,
+    c0: usize,
+) {
+    let done = batch_cell_update(gates, hn, lanes, k.kernel(), on, h, c, stride, c0);
+    cell_update_from(gates, hn, lanes, k, on, h, c, stride, c0, done);
+}
+
+/// [`cell_update`] all in Rust (what other targets run).
+#[allow(clippy::too_many_arguments)]
+pub fn cell_update_portable(
+    gates: &[i16],
+    hn: usize,
+    lanes: usize,
+    k: CellShifts,
+    on: &[bool],
+    h: &mut [u32],
+    c: &mut [i16],
+    stride: usize,
+    c0: usize,
+) {
+    cell_update_from(gates, hn, lanes, k, on, h, c, stride, c0, 0);
+}
+
+/// [`cell_update`] of the lanes from `done` on.
+#[allow(clippy::too_many_arguments)]
+fn cell_update_from(
+    gates: &[i16],
+    hn: usize,
+    lanes: usize,
+    k: CellShifts,
+    on: &[bool],
+    h: &mut [u32],
+    c: &mut [i16],
+    stride: usize,
+    c0: usize,
+    done: usize,
+) {
+    let gate = |g: usize, j: usize| gates.get((g * hn + j) * lanes..(g * hn + j + 1) * lanes);
+    for p in 0..hn.div_ceil(2) {
+        let Some(hw) = h.get_mut(p * stride + c0..p * stride + c0 + lanes) else {
+            return;
+        };
+        for u in 0..2 {
+            let j = 2 * p + u;
+            if j >= hn {
+                break;
+            }
+            let (Some(gi), Some(gf), Some(gg), Some(go), Some(cj), Some(on)) = (
+                gate(0, j),
+                gate(1, j),
+                gate(2, j),
+                gate(3, j),
+                c.get_mut(j * stride + c0..j * stride + c0 + lanes),
+                on.get(..lanes),
+            ) else {
+                return;
+            };
+            let shift = 16 * u as u32;
+            for i in done..lanes {
+                if on[i] {
+                    let mut hv = 0i16;
+                    cell_unit(k, [gi[i], gf[i], gg[i], go[i]], &mut cj[i], &mut hv);
+                    hw[i] = (hw[i] & !(0xffff << shift)) | (hv as u16 as u32) << shift;
+                }
+            }
+        }
     }
 }
 

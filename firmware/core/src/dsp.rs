@@ -26,9 +26,9 @@
 //!   LSTM's and the dense layer's sums for many channels: i16-pair weights × lane-contiguous
 //!   activations, VPMADDWD tiles of 6 or 4 rows × 16 lanes), [`batch_gate_rows`] and
 //!   [`batch_cell_update`] (the gate pass and the cell update, 8 lanes at a time with gathered
-//!   table lookups) and [`stft_bin_sums`], each an AVX2 path chosen at run time
-//!   (`is_x86_feature_detected!`) beside its portable reference (`*_portable`, what other
-//!   targets run). The portable pair-sum loop does not become VPMADDWD under LLVM (it gives
+//!   table lookups; the lanes and rows they leave, and every lane on other targets, run the
+//!   single path's code in [`crate::batch`]) and [`stft_bin_sums`], each an AVX2 path chosen
+//!   at run time (`is_x86_feature_detected!`). The portable pair-sum loop does not become VPMADDWD under LLVM (it gives
 //!   VPMULLD on widened lanes, about a third of the throughput), hence the intrinsics.
 //!
 //! The QEMU bench (`firmware/qemu-bench`) checks every assembly path against its reference.
@@ -1774,12 +1774,19 @@ fn pair_sums_cell_range(
     }
 }
 
-/// The batched LSTM's gate pass over `lanes` lanes (host, `std`): for row r and lane l,
+/// Whether [`batch_gate_rows`] takes row `p`: the fast requantisation form, shift 33..=62.
+#[cfg(feature = "std")]
+pub fn batch_gate_row_fast(p: &LstmRowParams) -> bool {
+    (p.shift as u32).wrapping_sub(33) < 30
+}
+
+/// The batched LSTM's gate pass where it runs fast (host, `std`): for each row r with
+/// [`batch_gate_row_fast`] and each lane l below the returned count,
 /// `gates[r·lanes + l] = f(requant(rows[r], acc_x[r·lanes + l], acc_h[r·lanes + l]))` with
-/// f = tanh for the cell-candidate rows `2·hn..3·hn` and σ for the others: the single path's
-/// gate pass ([`crate::lstm::gate_activations_portable`]: the same requantisation and table
-/// lookups), row by row with the lanes innermost. With AVX2 (detected at run time) the same
-/// code compiled for AVX2 (the requantisation's 32 × 32 → 64-bit products as VPMULDQ).
+/// f = tanh for the cell-candidate rows `2·hn..3·hn` and σ for the others (the single path's
+/// `lstm::requant` and table lookups). With AVX2 (detected at run time) the lanes in whole
+/// groups of 8 ([`x86::gate_rows_avx2`]); otherwise none (returns 0). The caller
+/// (`batch`) does the rest with the single path's code.
 #[cfg(feature = "std")]
 pub fn batch_gate_rows(
     acc_x: &[i32],
@@ -1788,121 +1795,43 @@ pub fn batch_gate_rows(
     hn: usize,
     lanes: usize,
     gates: &mut [i16],
-) {
+) -> usize {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: AVX2 is present (detected above); the function is safe code compiled for it.
-        unsafe { x86::gate_rows_avx2(acc_x, acc_h, rows, hn, lanes, gates) };
-        return;
+        return unsafe { x86::gate_rows_avx2(acc_x, acc_h, rows, hn, lanes, gates) };
     }
-    batch_gate_rows_portable(acc_x, acc_h, rows, hn, lanes, gates);
+    let _ = (acc_x, acc_h, rows, hn, lanes, gates);
+    0
 }
 
-/// The code of [`batch_gate_rows`] (inlined into each target's copy).
-#[cfg(feature = "std")]
-#[inline(always)]
-pub fn batch_gate_rows_portable(
-    acc_x: &[i32],
-    acc_h: &[i32],
-    rows: &[LstmRowParams],
-    hn: usize,
-    lanes: usize,
-    gates: &mut [i16],
-) {
-    let (sig, tanh) = (interval_table(false), interval_table(true));
-    for (r, p) in rows.iter().enumerate() {
-        let table = if (2 * hn..3 * hn).contains(&r) {
-            tanh
-        } else {
-            sig
-        };
-        let span = r * lanes..(r + 1) * lanes;
-        let (Some(g), Some(a), Some(b)) = (
-            gates.get_mut(span.clone()),
-            acc_x.get(span.clone()),
-            acc_h.get(span),
-        ) else {
-            return;
-        };
-        for ((g, &a), &b) in g.iter_mut().zip(a).zip(b) {
-            *g = crate::activation::lookup(table, crate::lstm::requant(p, a, b));
-        }
-    }
-}
-
-/// The batched LSTM's cell update (host, `std`) for the `lanes` lanes starting at lane `c0` of
-/// a state with row stride `stride`: for each unit j < `hn` and lane i, the single path's
-/// [`crate::lstm::cell_unit`] from the gates `gates[(g·hn + j)·lanes + i]` (i, f, g, o) on
-/// `c[j·stride + c0 + i]`, writing c' there and h' into the low (j even) or high (j odd) half of
-/// `h[(j / 2)·stride + c0 + i]`; lanes with `on[i]` false keep their c and h. With AVX2
-/// (detected at run time) the same code compiled for AVX2.
+/// The batched LSTM's cell update where it runs fast (host, `std`), for the lanes below the
+/// returned count of the `lanes` lanes starting at lane `c0` of a state with row stride
+/// `stride`: for each unit j < `hn` and lane i, `lstm::cell_unit` (with `k`'s constants) from
+/// the gates `gates[(g·hn + j)·lanes + i]` (i, f, g, o) on `c[j·stride + c0 + i]`, writing c'
+/// there and h' into the low (j even) or high (j odd) half of `h[(j / 2)·stride + c0 + i]`;
+/// lanes with `on[i]` false keep their c and h. With AVX2 (detected at run time) the lanes in
+/// whole groups of 8; otherwise none (returns 0).
 #[cfg(feature = "std")]
 #[allow(clippy::too_many_arguments)]
 pub fn batch_cell_update(
     gates: &[i16],
     hn: usize,
     lanes: usize,
-    k: crate::lstm::CellShifts,
+    k: CellParams,
     on: &[bool],
     h: &mut [u32],
     c: &mut [i16],
     stride: usize,
     c0: usize,
-) {
+) -> usize {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: AVX2 is present (detected above); the function is safe code compiled for it.
-        unsafe { x86::cell_update_avx2(gates, hn, lanes, k, on, h, c, stride, c0) };
-        return;
+        return unsafe { x86::cell_update_avx2(gates, hn, lanes, k, on, h, c, stride, c0) };
     }
-    batch_cell_update_portable(gates, hn, lanes, k, on, h, c, stride, c0);
-}
-
-/// The code of [`batch_cell_update`] (inlined into each target's copy).
-#[cfg(feature = "std")]
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub fn batch_cell_update_portable(
-    gates: &[i16],
-    hn: usize,
-    lanes: usize,
-    k: crate::lstm::CellShifts,
-    on: &[bool],
-    h: &mut [u32],
-    c: &mut [i16],
-    stride: usize,
-    c0: usize,
-) {
-    let gate = |g: usize, j: usize| gates.get((g * hn + j) * lanes..(g * hn + j + 1) * lanes);
-    for p in 0..hn.div_ceil(2) {
-        let Some(hw) = h.get_mut(p * stride + c0..p * stride + c0 + lanes) else {
-            return;
-        };
-        for u in 0..2 {
-            let j = 2 * p + u;
-            if j >= hn {
-                break;
-            }
-            let (Some(gi), Some(gf), Some(gg), Some(go), Some(cj), Some(on)) = (
-                gate(0, j),
-                gate(1, j),
-                gate(2, j),
-                gate(3, j),
-                c.get_mut(j * stride + c0..j * stride + c0 + lanes),
-                on.get(..lanes),
-            ) else {
-                return;
-            };
-            let shift = 16 * u as u32;
-            for i in 0..lanes {
-                let (mut cn, mut hv) = (cj[i], 0i16);
-                crate::lstm::cell_unit(k, [gi[i], gf[i], gg[i], go[i]], &mut cn, &mut hv);
-                let word = (hw[i] & !(0xffff << shift)) | (hv as u16 as u32) << shift;
-                cj[i] = if on[i] { cn } else { cj[i] };
-                hw[i] = if on[i] { word } else { hw[i] };
-            }
-        }
-    }
+    let _ = (gates, hn, lanes, k, on, h, c, stride, c0);
+    0
 }
 
 /// One STFT time step of one bin for many lanes (host, `std`): `re[i] += xw[i]·c`,
@@ -2002,11 +1931,11 @@ mod x86 {
         unsafe { _mm_storeu_si128(d.as_mut_ptr() as *mut __m128i, _mm256_castsi256_si128(p)) };
     }
 
-    /// [`super::batch_gate_rows_portable`] with 8 lanes per pass: the requantisation of
+    /// [`super::batch_gate_rows`] with 8 lanes per pass: the requantisation of
     /// `lstm::requant`'s fast form (shift 33..=62: z = 2^k·2^32 + acc_x·mx + acc_h·mh, its
     /// high word >> (k + 1), + bias, sat16) with VPMULDQ on the even and odd lanes, then the
-    /// table lookup by gather. Rows of the wide form, and the lanes past the last 8, run the
-    /// portable code.
+    /// table lookup by gather, on the rows of the fast form; returns the lanes done (the
+    /// caller does the rest).
     ///
     /// The bias is added without saturation after clamping it to ±2^30: the high word is
     /// below 2^30 in magnitude (|z| < 2^61 plus the half, see `lstm::requant`), so after the
@@ -2016,11 +1945,11 @@ mod x86 {
     pub(super) fn gate_rows_avx2(
         acc_x: &[i32],
         acc_h: &[i32],
-        rows: &[crate::blob::LstmRowParams],
+        rows: &[super::LstmRowParams],
         hn: usize,
         lanes: usize,
         gates: &mut [i16],
-    ) {
+    ) -> usize {
         let (sig, tanh) = (super::interval_table(false), super::interval_table(true));
         let n8 = lanes / 8 * 8;
         for (r, p) in rows.iter().enumerate() {
@@ -2035,16 +1964,18 @@ mod x86 {
                 acc_x.get(span.clone()),
                 acc_h.get(span),
             ) else {
-                return;
+                return 0;
             };
+            if !super::batch_gate_row_fast(p) {
+                continue;
+            }
             let k = (p.shift as u32).wrapping_sub(33);
-            let done = if k < 30 { n8 } else { 0 };
             let mx = _mm256_set1_epi32(p.mx);
             let mh = _mm256_set1_epi32(p.mh);
             let half = _mm256_set1_epi32(1 << (k & 31));
             let cnt = _mm_cvtsi32_si128((k + 1) as i32);
             let bias = _mm256_set1_epi32(p.bias_q12.clamp(-(1 << 30), 1 << 30));
-            for i in (0..done).step_by(8) {
+            for i in (0..n8).step_by(8) {
                 // SAFETY: i + 8 ≤ n8 ≤ lanes = a.len() = b.len(); unaligned loads.
                 let (ax, ah) = unsafe {
                     (
@@ -2061,29 +1992,27 @@ mod x86 {
                 let z = sat16(_mm256_add_epi32(t, bias));
                 store_i16x8(&mut g[i..], lookup8(table, z));
             }
-            for ((g, &a), &b) in g.iter_mut().zip(a).zip(b).skip(done) {
-                *g = crate::activation::lookup(table, crate::lstm::requant(p, a, b));
-            }
         }
+        n8
     }
 
-    /// [`super::batch_cell_update_portable`] with 8 lanes per pass (`lstm::cell_unit`'s
+    /// [`super::batch_cell_update`] with 8 lanes per pass (`lstm::cell_unit`'s
     /// arithmetic in i32 lanes: every product of two i16 and its rounding half fit, see there;
-    /// the cell → Q3.12 conversion in its `q_mul`/`q_add` form; tanh by gather); the lanes past
-    /// the last 8 run the portable code.
+    /// the cell → Q3.12 conversion in its `q_mul`/`q_add` form; tanh by gather); returns the
+    /// lanes done (the caller does the rest).
     #[target_feature(enable = "avx2")]
     #[allow(clippy::too_many_arguments)]
     pub(super) fn cell_update_avx2(
         gates: &[i16],
         hn: usize,
         lanes: usize,
-        k: crate::lstm::CellShifts,
+        k: super::CellParams,
         on: &[bool],
         h: &mut [u32],
         c: &mut [i16],
         stride: usize,
         c0: usize,
-    ) {
+    ) -> usize {
         let n8 = lanes / 8 * 8;
         let tanh = super::interval_table(true);
         let round15 = _mm256_set1_epi32(1 << 14);
@@ -2093,7 +2022,7 @@ mod x86 {
         let gate = |g: usize, j: usize| gates.get((g * hn + j) * lanes..(g * hn + j + 1) * lanes);
         for p in 0..hn.div_ceil(2) {
             let Some(hw) = h.get_mut(p * stride + c0..p * stride + c0 + lanes) else {
-                return;
+                return 0;
             };
             for u in 0..2 {
                 let j = 2 * p + u;
@@ -2108,7 +2037,7 @@ mod x86 {
                     c.get_mut(j * stride + c0..j * stride + c0 + lanes),
                     on.get(..lanes),
                 ) else {
-                    return;
+                    return 0;
                 };
                 let keep = _mm256_set1_epi32(!(0xffff_u32 << (16 * u)) as i32);
                 let up = _mm_cvtsi32_si128(16 * u as i32);
@@ -2155,17 +2084,9 @@ mod x86 {
                         );
                     }
                 }
-                let shift = 16 * u as u32;
-                for i in n8..lanes {
-                    let (mut cn, mut hv) = (cj[i], 0i16);
-                    crate::lstm::cell_unit(k, [gi[i], gf[i], gg[i], go[i]], &mut cn, &mut hv);
-                    if on[i] {
-                        cj[i] = cn;
-                        hw[i] = (hw[i] & !(0xffff << shift)) | (hv as u16 as u32) << shift;
-                    }
-                }
             }
         }
+        n8
     }
 
     /// [`super::stft_bin_sums_portable`] compiled for AVX2.

@@ -1,12 +1,13 @@
-//! The batched path's kernels (`slipguard_core::dsp`, host): each run-time-chosen path (AVX2
-//! on this machine) against its portable reference, on random inputs over the admitted ranges,
+//! The batched path's kernels (`slipguard_core::dsp`, host, with their callers in
+//! `slipguard_core::batch`): each run-time-chosen path (AVX2 on this machine) against the
+//! portable code, on random inputs over the admitted ranges,
 //! edge values and shapes with partial tiles. `batch_vs_single.rs` checks the whole batched
 //! step against the single path; these check the portable code other targets run, too.
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use slipguard_core::batch::{cell_update, cell_update_portable, gate_rows, gate_rows_portable};
 use slipguard_core::blob::LstmRowParams;
 use slipguard_core::dsp::{
-    batch_cell_update, batch_cell_update_portable, batch_gate_rows, batch_gate_rows_portable,
     batch_pair_sums, batch_pair_sums_portable, stft_bin_sums, stft_bin_sums_portable,
 };
 use slipguard_core::lstm::CellShifts;
@@ -106,8 +107,8 @@ fn gate_rows_equal_the_portable_gate_rows() {
                 .collect();
             let mut fast = vec![0i16; rows * lanes];
             let mut slow = vec![1i16; rows * lanes];
-            batch_gate_rows(&ax, &ah, &params, hn, lanes, &mut fast);
-            batch_gate_rows_portable(&ax, &ah, &params, hn, lanes, &mut slow);
+            gate_rows(&ax, &ah, &params, hn, lanes, &mut fast);
+            gate_rows_portable(&ax, &ah, &params, hn, lanes, &mut slow);
             assert_eq!(fast, slow, "hn {hn} lanes {lanes} round {round}");
         }
     }
@@ -131,8 +132,8 @@ fn cell_updates_equal_the_portable_cell_updates() {
             let c_init: Vec<i16> = (0..hn * stride).map(|_| rng.random()).collect();
             let (mut hf, mut cf) = (h0.clone(), c_init.clone());
             let (mut hs, mut cs) = (h0.clone(), c_init.clone());
-            batch_cell_update(&gates, hn, lanes, k, &on, &mut hf, &mut cf, stride, c0);
-            batch_cell_update_portable(&gates, hn, lanes, k, &on, &mut hs, &mut cs, stride, c0);
+            cell_update(&gates, hn, lanes, k, &on, &mut hf, &mut cf, stride, c0);
+            cell_update_portable(&gates, hn, lanes, k, &on, &mut hs, &mut cs, stride, c0);
             assert_eq!(cf, cs, "c: hn {hn} lanes {lanes} C {cb}");
             assert_eq!(hf, hs, "h: hn {hn} lanes {lanes} C {cb}");
             assert_ne!(cf, c_init, "the update changed something");
