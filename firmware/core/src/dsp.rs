@@ -1686,7 +1686,7 @@ pub fn madd_pair(a: u32, b: u32) -> i32 {
 /// not change them: every path gives the same numbers as [`batch_pair_sums_portable`].
 ///
 /// On x86-64 with AVX2 (detected at run time), whole tiles of [`BATCH_TILE_ROWS`] rows ×
-/// [`BATCH_TILE_LANES`] lanes run in [`x86::pair_sums_avx2`]: per input pair 2 lane loads, 4
+/// [`BATCH_TILE_LANES`] lanes run in `x86::pair_sums_avx2`: per input pair 2 lane loads, 4
 /// broadcast weights, 8 VPMADDWD and 8 VPADDD (about 2 cycles per 128 multiply-adds); the
 /// rows and lanes outside whole tiles, and other targets, run the portable code.
 #[cfg(feature = "std")]
@@ -1785,7 +1785,7 @@ pub fn batch_gate_row_fast(p: &LstmRowParams) -> bool {
 /// `gates[r·lanes + l] = f(requant(rows[r], acc_x[r·lanes + l], acc_h[r·lanes + l]))` with
 /// f = tanh for the cell-candidate rows `2·hn..3·hn` and σ for the others (the single path's
 /// `lstm::requant` and table lookups). With AVX2 (detected at run time) the lanes in whole
-/// groups of 8 ([`x86::gate_rows_avx2`]); otherwise none (returns 0). The caller
+/// groups of 8 (`x86::gate_rows_avx2`); otherwise none (returns 0). The caller
 /// (`batch`) does the rest with the single path's code.
 #[cfg(feature = "std")]
 pub fn batch_gate_rows(
