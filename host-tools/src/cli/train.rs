@@ -16,6 +16,7 @@ use slipguard_learn::evaluation::{
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
 };
 use slipguard_learn::product::{self, OnsetRule};
+use slipguard_learn::qat::{QatConfig, blob_agreement, qat_finetune};
 use slipguard_learn::train::{EpochLog, Progress, TrainConfig, init_model, split_by_trial, train};
 
 use super::check;
@@ -153,6 +154,15 @@ pub struct Args {
     /// (the firmware's model state starts at the onset; this is for comparison only).
     #[arg(long)]
     pub from_grasp_start: bool,
+    /// Quantization-aware fine-tuning after the float training: this many epochs with the
+    /// blob's arithmetic in the forward pass (int8 weights by the quantizer's row rule, σ/tanh
+    /// tables, Q3.12/Q0.15 rounding, the calibrated cell format), straight-through gradients,
+    /// early stopping on the same validation set (0 = off).
+    #[arg(long, default_value_t = 0)]
+    pub qat_epochs: usize,
+    /// Learning rate (Adam) of the quantization-aware fine-tuning, > 0.
+    #[arg(long, default_value_t = 1e-4, value_parser = check::positive)]
+    pub qat_lr: f64,
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
@@ -255,6 +265,74 @@ impl Run<'_> {
                 .map_or(f64::NAN, |l| l.val_loss)
         );
         Ok((out.model, out.best_epoch, spe, out.history))
+    }
+
+    /// Quantization-aware fine-tuning of `model` (`--qat-epochs`), with the cell format the
+    /// blob gets from `calib`; prints max |Δp| of the blob against the float model before and
+    /// after on the validation sequences. Returns the model, (the checkpoint note, the best QAT
+    /// epoch, 0 = the float weights kept), seconds per epoch and the epochs' log.
+    fn qat(
+        &self,
+        what: &str,
+        model: &FloatModel,
+        tr: &[&ChannelSequence],
+        val: &[&ChannelSequence],
+        calib: &[&[f32]],
+    ) -> anyhow::Result<(FloatModel, (String, usize), f64, Vec<EpochLog>)> {
+        let bits = slipguard_core::quantize::quantize(model, calib, None)?
+            .1
+            .cell_frac_bits;
+        let qc = QatConfig {
+            epochs: self.a.qat_epochs,
+            lr: self.a.qat_lr,
+            cell_frac_bits: bits.clone(),
+        };
+        let seqs: Vec<&[f32]> = val.iter().map(|s| s.samples.as_slice()).collect();
+        let before = blob_agreement(model, calib, &seqs)?;
+        let what = format!("{what} QAT");
+        let pb = bar(qc.epochs as u64, &what);
+        pb.enable_steady_tick(std::time::Duration::from_millis(500));
+        let out = qat_finetune(model, tr, val, &self.tc, &qc, |p| match p {
+            Progress::Batch {
+                epoch,
+                batch,
+                batches,
+                train_loss,
+            } => pb.set_message(format!(
+                "{what} epoch {epoch} batch {batch}/{batches} train loss {train_loss:.4}"
+            )),
+            Progress::Epoch(l) => {
+                pb.set_position(l.epoch as u64);
+                pb.set_message(format!(
+                    "{what} (epoch {}: val loss {:.4}, {:.1} s)",
+                    l.epoch, l.val_loss, l.seconds
+                ));
+            }
+        })?;
+        pb.finish_and_clear();
+        let after = blob_agreement(&out.model, calib, &seqs)?;
+        let n = out.history.len();
+        let spe = out.history.iter().map(|l| l.seconds).sum::<f64>() / n.max(1) as f64;
+        let bits_after = slipguard_core::quantize::quantize(&out.model, calib, None)?
+            .1
+            .cell_frac_bits;
+        let note = format!(
+            "{n} epochs, lr {}, cell bits {bits:?}, best epoch {}; max |dp| blob vs float on {} validation sequences {:.4} -> {:.4} (blob vs the QAT forward {:.4} -> {:.4})",
+            qc.lr,
+            out.best_epoch,
+            seqs.len(),
+            before.float,
+            after.float,
+            before.fake_quant,
+            after.fake_quant
+        );
+        eprintln!("  {what}: {note} ({spe:.2} s/epoch)");
+        if bits_after != bits {
+            eprintln!(
+                "  {what}: note: after QAT the calibration picks cell bits {bits_after:?}, not the {bits:?} fine-tuned with"
+            );
+        }
+        Ok((out.model, (note, out.best_epoch), spe, out.history))
     }
 
     fn decision(
@@ -568,9 +646,25 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             } else {
                 "train".to_string()
             };
-            let (mut model, best_epoch, spe, history) =
+            let (mut model, mut best_epoch, spe, mut history) =
                 run.fit(&what, &init, &tr, &val, &run.tc)?;
             timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
+            let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+            let mut qat_note = None;
+            if a.qat_epochs > 0 {
+                let (m, note, qspe, qhist) = run.qat(&what, &model, &tr, &val, &calib)?;
+                timing.push(format!("{what} QAT {qspe:.2} s/epoch"));
+                if note.1 > 0 {
+                    best_epoch = history.len() + note.1;
+                }
+                let n_float = history.len();
+                history.extend(qhist.iter().map(|l| EpochLog {
+                    epoch: n_float + l.epoch,
+                    ..*l
+                }));
+                model = m;
+                qat_note = Some(note.0);
+            }
             let val_seqs: Vec<&Sequence> = real
                 .iter()
                 .chain(&sim_mix)
@@ -582,12 +676,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .iter()
                 .filter(|t| val_ids.contains(t.id.as_str()))
                 .collect();
-            let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
             run.decision(&mut model, &val_seqs, &val_trials, &calib)?;
             let mut extra = std::collections::BTreeMap::new();
             extra.insert("train_command".into(), run.command.clone());
             extra.insert("best_epoch".into(), best_epoch.to_string());
             extra.insert("seconds_per_epoch".into(), format!("{spe:.3}"));
+            if let Some(n) = qat_note {
+                extra.insert("qat".into(), n);
+            }
             let ids = |v: &[&ChannelSequence]| {
                 let mut ids: Vec<String> = v.iter().map(|s| s.trial_id.clone()).collect();
                 ids.sort();
@@ -644,7 +740,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 let p = a.out.join(format!("{name}.safetensors"));
                 checkpoint::write(&p, &ck)?;
                 write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
-                let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
                 let blob = quantize_model(&ck.model, &calib)?;
                 let bp = a.out.join(format!("{name}.bin"));
                 std::fs::write(&bp, &blob).with_context(|| format!("writing {}", bp.display()))?;
