@@ -46,6 +46,40 @@ pub struct QatConfig {
     /// Cell format C per LSTM (the blob's `cell_frac_bits`; the quantizer picks it from the
     /// calibration data, [`slipguard_core::quantize::QuantReport::cell_frac_bits`]).
     pub cell_frac_bits: Vec<u8>,
+    /// Whole recordings (raw samples, unlabelled) on which each epoch's blob is compared with
+    /// its float checkpoint ([`max_dp_blob_vs_float`]): the epoch kept is the one with the lowest
+    /// validation loss among those within `max_dp` there (else the one closest to it). Empty: by
+    /// validation loss alone.
+    pub agreement: Vec<Vec<f32>>,
+    /// Bound on max |Δp| over [`Self::agreement`] for an epoch to be kept.
+    pub max_dp: f32,
+}
+
+/// max |Δp| between the blob of `model` with cell formats `cell_frac_bits` (the bit-exact
+/// core) and the float model, over every step of `seqs` from a reset state: what
+/// `slipguard-export verify` measures.
+pub fn max_dp_blob_vs_float(
+    model: &FloatModel,
+    cell_frac_bits: &[u8],
+    seqs: &[Vec<f32>],
+) -> Result<f32> {
+    let bits = [
+        cell_frac_bits.first().copied().unwrap_or(11),
+        cell_frac_bits.get(1).copied().unwrap_or(11),
+    ];
+    let (blob, _) = slipguard_core::quantize::quantize(model, &[], Some(bits))?;
+    let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
+    let q = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
+        .map_err(|e| LearnError::Training(format!("the quantized model does not parse: {e}")))?;
+    let mut worst = 0f32;
+    for s in seqs {
+        let pq = crate::evaluation::quant_p_q15(&q, s);
+        let pf = crate::train::float_probabilities(model, s);
+        for (&q, f) in pq.iter().zip(pf) {
+            worst = worst.max((q as f32 / 32768.0 - f).abs());
+        }
+    }
+    Ok(worst)
 }
 
 /// The features the blob's front end computes for one raw sequence (Q3.12 as reals, one row per
@@ -369,8 +403,10 @@ pub fn fake_quant_probabilities(
 
 /// Fine-tunes `init` with the blob's arithmetic in the forward pass ([`QatConfig`]), early
 /// stopping on the validation loss of that forward pass; epoch 0 (the weights as given, under
-/// fake quantisation) counts, so the result is never worse on validation than the input. The
-/// returned model is snapped to the blob's grid ([`snap_to_blob_grid`]).
+/// fake quantisation) counts, so the result is never worse on validation than the input; with
+/// agreement recordings the pick is among the epochs whose blob follows their float checkpoint
+/// ([`QatConfig::agreement`]). The returned model is snapped to the blob's grid
+/// ([`snap_to_blob_grid`]).
 pub fn qat_finetune(
     init: &FloatModel,
     train: &[&ChannelSequence],
@@ -378,7 +414,7 @@ pub fn qat_finetune(
     cfg: &TrainConfig,
     qat: &QatConfig,
     mut progress: impl FnMut(Progress<'_>),
-) -> Result<TrainOutcome> {
+) -> Result<QatOutcome> {
     if train.is_empty() {
         return Err(LearnError::Training("no training sequences".into()));
     }
@@ -412,10 +448,26 @@ pub fn qat_finetune(
         }
         Ok(if n > 0.0 { s / n } else { f64::NAN })
     };
-    let mut best = (f64::INFINITY, 0usize, snap_to_blob_grid(init));
-    if !val_batches.is_empty() {
-        best.0 = eval_loss(&net, &val_batches)?;
-    }
+    // (validation loss, epoch, model, max |Δp| on the agreement recordings).
+    type Pick = (f64, usize, FloatModel, f32);
+    let agree = |m: &FloatModel| -> Result<f32> {
+        if qat.agreement.is_empty() {
+            Ok(0.0)
+        } else {
+            max_dp_blob_vs_float(m, &qat.cell_frac_bits, &qat.agreement)
+        }
+    };
+    let m0 = snap_to_blob_grid(init);
+    let v0 = if val_batches.is_empty() {
+        f64::INFINITY
+    } else {
+        eval_loss(&net, &val_batches)?
+    };
+    let d0 = agree(&m0)?;
+    // The best epoch within the bound, and the one closest to the bound.
+    let mut best: Option<Pick> = (d0 <= qat.max_dp).then(|| (v0, 0, m0.clone(), d0));
+    let mut closest: Pick = (v0, 0, m0, d0);
+    let mut agreement_log = vec![d0];
     let mut history = Vec::new();
     let mut order: Vec<usize> = (0..train.len()).collect();
     for epoch in 1..=qat.epochs {
@@ -455,17 +507,43 @@ pub fn qat_finetune(
                 "QAT diverged at epoch {epoch}"
             )));
         }
-        if val_loss < best.0 || val_batches.is_empty() {
-            best = (val_loss, epoch, snap_to_blob_grid(&net.extract(init)?));
-        } else if epoch - best.1 >= cfg.patience {
+        let m = snap_to_blob_grid(&net.extract(init)?);
+        let d = agree(&m)?;
+        agreement_log.push(d);
+        let better = |b: &Option<Pick>| match b {
+            None => true,
+            Some(b) => val_loss < b.0 || val_batches.is_empty(),
+        };
+        if d <= qat.max_dp && better(&best) {
+            best = Some((val_loss, epoch, m.clone(), d));
+        }
+        if d < closest.3 {
+            closest = (val_loss, epoch, m, d);
+        }
+        let last_good = best.as_ref().map_or(closest.1, |b| b.1);
+        if epoch - last_good >= cfg.patience {
             break;
         }
     }
-    Ok(TrainOutcome {
-        model: best.2,
-        history,
-        best_epoch: best.1,
+    let best = best.unwrap_or(closest);
+    Ok(QatOutcome {
+        trained: TrainOutcome {
+            model: best.2,
+            history,
+            best_epoch: best.1,
+        },
+        agreement: agreement_log,
     })
+}
+
+/// What [`qat_finetune`] returns.
+#[derive(Debug, Clone)]
+pub struct QatOutcome {
+    /// The kept epoch's model (snapped), the epochs' log and the kept epoch (0 = the input).
+    pub trained: TrainOutcome,
+    /// max |Δp| of each epoch's blob against its float checkpoint on
+    /// [`QatConfig::agreement`] (epoch 0 first; zeros without agreement recordings).
+    pub agreement: Vec<f32>,
 }
 
 /// max |Δp| over some raw sequences of the blob [`crate::evaluation::quantize_model`] makes of

@@ -32,6 +32,8 @@ fn blob_follows_the_qat_forward_pass() {
         epochs: 3,
         lr: 1e-3,
         cell_frac_bits: bits.clone(),
+        agreement: Vec::new(),
+        max_dp: 0.05,
     };
     let mut epochs = 0;
     let out = qat_finetune(&float, &data, &[], &cfg, &qc, |p| {
@@ -39,7 +41,8 @@ fn blob_follows_the_qat_forward_pass() {
             epochs += 1;
         }
     })
-    .unwrap();
+    .unwrap()
+    .trained;
     assert_eq!(epochs, 3);
     assert_ne!(
         out.model.lstms[0].w_hh,

@@ -163,6 +163,16 @@ pub struct Args {
     /// Learning rate (Adam) of the quantization-aware fine-tuning, > 0.
     #[arg(long, default_value_t = 1e-4, value_parser = check::positive)]
     pub qat_lr: f64,
+    /// QAT keeps the epoch with the lowest validation loss among those whose blob stays within
+    /// this max |Δp| of its float checkpoint over every step of the whole agreement recordings
+    /// (what `slipguard-export verify` measures; else the epoch closest to it), 0…1.
+    #[arg(long, default_value_t = 0.025, value_parser = check::unit)]
+    pub qat_max_dp: f64,
+    /// Recordings (unlabelled use: whole contact channels) for the QAT agreement check (default:
+    /// the real force trials, without the held-out ones in cross-validation; `none` = by
+    /// validation loss alone).
+    #[arg(long)]
+    pub qat_agreement_data: Option<PathBuf>,
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
@@ -278,6 +288,7 @@ impl Run<'_> {
         tr: &[&ChannelSequence],
         val: &[&ChannelSequence],
         calib: &[&[f32]],
+        agreement: Vec<Vec<f32>>,
     ) -> anyhow::Result<(FloatModel, (String, usize), f64, Vec<EpochLog>)> {
         let bits = slipguard_core::quantize::quantize(model, calib, None)?
             .1
@@ -286,7 +297,10 @@ impl Run<'_> {
             epochs: self.a.qat_epochs,
             lr: self.a.qat_lr,
             cell_frac_bits: bits.clone(),
+            max_dp: self.a.qat_max_dp as f32,
+            agreement,
         };
+        let n_agree = qc.agreement.len();
         let seqs: Vec<&[f32]> = val.iter().map(|s| s.samples.as_slice()).collect();
         let before = blob_agreement(model, calib, &seqs)?;
         let what = format!("{what} QAT");
@@ -310,16 +324,21 @@ impl Run<'_> {
             }
         })?;
         pb.finish_and_clear();
+        let dps = out.agreement.clone();
+        let out = out.trained;
         let after = blob_agreement(&out.model, calib, &seqs)?;
         let n = out.history.len();
         let spe = out.history.iter().map(|l| l.seconds).sum::<f64>() / n.max(1) as f64;
         let bits_after = slipguard_core::quantize::quantize(&out.model, calib, None)?
             .1
             .cell_frac_bits;
+        let dps: Vec<String> = dps.iter().map(|d| format!("{d:.4}")).collect();
         let note = format!(
-            "{n} epochs, lr {}, cell bits {bits:?}, best epoch {}; max |dp| blob vs float on {} validation sequences {:.4} -> {:.4} (blob vs the QAT forward {:.4} -> {:.4})",
+            "{n} epochs, lr {}, cell bits {bits:?}, kept epoch {}; max |dp| blob vs float checkpoint over {n_agree} whole agreement recordings per epoch (0 = before QAT) [{}], bound {}; on {} validation sequences {:.4} -> {:.4} (blob vs the QAT forward {:.4} -> {:.4})",
             qc.lr,
             out.best_epoch,
+            dps.join(", "),
+            qc.max_dp,
             seqs.len(),
             before.float,
             after.float,
@@ -561,6 +580,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             cl_mix.len()
         );
     }
+    // Whole recordings for the QAT agreement check (unlabelled use).
+    let agreement_trials: Vec<Trial> = match (&a.qat_agreement_data, a.sensor) {
+        _ if a.qat_epochs == 0 => Vec::new(),
+        (Some(p), _) if p.as_os_str() == "none" => Vec::new(),
+        (Some(p), _) => load_real_trials(Some(p))?.1,
+        (None, Sensor::Force) if !real_trials.is_empty() => real_trials.clone(),
+        (None, Sensor::Force) => load_real_trials(a.path.as_deref())?.1,
+        (None, Sensor::Suction) => Vec::new(),
+    };
+    if !agreement_trials.is_empty() {
+        eprintln!(
+            "QAT agreement check on the whole contact channels of {} recorded trials",
+            agreement_trials.len()
+        );
+    }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let mut summary = Vec::new();
     for v in variants {
@@ -652,7 +686,19 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
             let mut qat_note = None;
             if a.qat_epochs > 0 {
-                let (m, note, qspe, qhist) = run.qat(&what, &model, &tr, &val, &calib)?;
+                let agreement: Vec<Vec<f32>> = agreement_trials
+                    .iter()
+                    .filter(|t| !held.contains(&t.id))
+                    .flat_map(|t| {
+                        t.samples
+                            .iter()
+                            .enumerate()
+                            .filter(|(c, s)| t.contact.get(*c) == Some(&true) && !s.is_empty())
+                            .map(|(_, s)| s.clone())
+                    })
+                    .collect();
+                let (m, note, qspe, qhist) =
+                    run.qat(&what, &model, &tr, &val, &calib, agreement)?;
                 timing.push(format!("{what} QAT {qspe:.2} s/epoch"));
                 if note.1 > 0 {
                     best_epoch = history.len() + note.1;
