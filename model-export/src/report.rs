@@ -461,7 +461,7 @@ fn dominant_rows(
     for s in seqs {
         let mut st = float.new_channel();
         for &raw in *s {
-            let take = t % stride == 0;
+            let take = t.is_multiple_of(stride);
             t += 1;
             let v = float.features(&mut st, raw);
             if take {

@@ -53,6 +53,9 @@ pub struct QatConfig {
     pub agreement: Vec<Vec<f32>>,
     /// Bound on max |Δp| over [`Self::agreement`] for an epoch to be kept.
     pub max_dp: f32,
+    /// Cell-state bound: the loss adds the mean over units of relu(|c| − cell_max)², averaged
+    /// over steps, so that the cell stays in a range a finer cell format covers (0 = none).
+    pub cell_max: f32,
 }
 
 /// max |Δp| between the blob of `model` with cell formats `cell_frac_bits` (the bit-exact
@@ -169,6 +172,8 @@ struct QatNet {
     dense_b: Var,
     sigmoid: Tensor,
     tanh: Tensor,
+    /// Bound on |c| the loss penalises beyond (0 = none).
+    cell_max: f32,
 }
 
 /// Int8 fake quantisation of a [rows, cols] weight by the quantizer's row rule, straight-through.
@@ -212,6 +217,7 @@ impl QatNet {
             dense_b: var(&m.dense.b, &[2])?,
             sigmoid: activation_table(false, dev)?,
             tanh: activation_table(true, dev)?,
+            cell_max: 0.0,
         })
     }
 
@@ -252,7 +258,9 @@ impl QatNet {
     }
 
     /// Hidden states [B, T, H] of one LSTM over inputs [B, T, I].
-    fn lstm(&self, l: &Lstm, x: &Tensor) -> candle_core::Result<Tensor> {
+    /// Also returns Σ over steps of the mean over batch and units of relu(|c| − cell_max)²
+    /// (0 without a bound).
+    fn lstm(&self, l: &Lstm, x: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
         let (b, t, i) = x.dims3()?;
         let h_n = l.hidden;
         let w_ih = fake_quant_rows(&l.w_ih)?;
@@ -270,6 +278,7 @@ impl QatNet {
         let mut h = Tensor::zeros((b, h_n), DType::F32, dev)?;
         let mut c = Tensor::zeros((b, h_n), DType::F32, dev)?;
         let mut hs = Vec::with_capacity(t);
+        let mut penalty = Tensor::zeros((), DType::F32, dev)?;
         for s in 0..t {
             let z = (xw.narrow(1, s, 1)?.squeeze(1)? + h.matmul(&w_hh)?)?;
             let g = z.chunk(4, 1)?;
@@ -287,43 +296,47 @@ impl QatNet {
                 32767f32 / (1u32 << cb) as f32,
             )?;
             c = ste(&(fc + ic)?, &cq)?;
+            if self.cell_max > 0.0 {
+                let over = (c.abs()? - self.cell_max as f64)?.relu()?;
+                penalty = (penalty + over.sqr()?.mean_all()?)?;
+            }
             // tanh of the cell in Q3.12 (saturated), then h = round(o·tanh(c')) in Q0.15.
             let hv = (&og * self.act(&c, true)?)?;
             h = ste(&hv, &grid(&hv, 15)?)?;
             hs.push(h.clone());
         }
-        Tensor::stack(&hs, 1)
+        Ok((Tensor::stack(&hs, 1)?, penalty))
     }
 
-    /// Logits [B, T, 2] of blob features [B, T, F].
-    fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        let hs = if self.lstms.len() == 1 {
+    /// Logits [B, T, 2] of blob features [B, T, F], and the cell penalty (see [`Self::lstm`]).
+    fn forward(&self, x: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
+        let (hs, pen) = if self.lstms.len() == 1 {
             self.lstm(&self.lstms[0], x)?
         } else {
             let split = self.lstms[0].input;
             let nb = self.lstms[1].input;
             let xf = x.narrow(2, 0, split)?.contiguous()?;
             let xb = x.narrow(2, split, nb)?.contiguous()?;
-            Tensor::cat(
-                &[
-                    self.lstm(&self.lstms[0], &xf)?,
-                    self.lstm(&self.lstms[1], &xb)?,
-                ],
-                2,
-            )?
+            let (a, pa) = self.lstm(&self.lstms[0], &xf)?;
+            let (b, pb) = self.lstm(&self.lstms[1], &xb)?;
+            (Tensor::cat(&[a, b], 2)?, (pa + pb)?)
         };
         let w = fake_quant_rows(&self.dense_w)?;
-        hs.broadcast_matmul(&w.t()?)?
-            .broadcast_add(self.dense_b.as_tensor())
+        let logits = hs
+            .broadcast_matmul(&w.t()?)?
+            .broadcast_add(self.dense_b.as_tensor())?;
+        Ok((logits, pen))
     }
 
     fn loss(&self, b: &Batch) -> candle_core::Result<Tensor> {
-        let logits = self.forward(&b.x)?;
+        let (logits, pen) = self.forward(&b.x)?;
         let logp = candle_nn::ops::log_softmax(&logits, D::Minus1)?;
         let picked = logp.gather(&b.y.unsqueeze(2)?, 2)?.squeeze(2)?;
-        (picked * &b.w)?
+        let ce = (picked * &b.w)?
             .sum_all()?
-            .affine(-1.0 / b.wsum.max(1e-9), 0.0)
+            .affine(-1.0 / b.wsum.max(1e-9), 0.0)?;
+        let steps = b.x.dim(1)?.max(1) as f64;
+        ce + pen.affine(1.0 / steps, 0.0)?
     }
 
     /// The trained weights back into a float model (normalisation and config from `base`).
@@ -393,7 +406,7 @@ pub fn fake_quant_probabilities(
     let nf = model.config.feature_count();
     let flat: Vec<f32> = f.into_iter().flatten().collect();
     let x = Tensor::from_vec(flat, (1, samples.len(), nf), &dev)?;
-    let logits = net.forward(&x)?;
+    let (logits, _) = net.forward(&x)?;
     let p = candle_nn::ops::softmax(&logits, D::Minus1)?
         .narrow(2, 1, 1)?
         .flatten_all()?
@@ -420,7 +433,8 @@ pub fn qat_finetune(
     }
     init.validate()?;
     let dev = Device::Cpu;
-    let net = QatNet::new(init, &qat.cell_frac_bits, &dev)?;
+    let mut net = QatNet::new(init, &qat.cell_frac_bits, &dev)?;
+    net.cell_max = qat.cell_max;
     let nf = init.config.feature_count();
     let ptrain = prepare(init, train, cfg.label_lead);
     let pval = prepare(init, val, cfg.label_lead);

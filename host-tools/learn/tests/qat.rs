@@ -34,6 +34,7 @@ fn blob_follows_the_qat_forward_pass() {
         cell_frac_bits: bits.clone(),
         agreement: Vec::new(),
         max_dp: 0.05,
+        cell_max: 0.0,
     };
     let mut epochs = 0;
     let out = qat_finetune(&float, &data, &[], &cfg, &qc, |p| {

@@ -52,9 +52,13 @@ pub struct Args {
     /// Learning rate (Adam), > 0.
     #[arg(long, default_value_t = 6e-4, value_parser = check::positive)]
     pub lr: f64,
-    /// Training epochs (≥ 1).
-    #[arg(long, default_value_t = 60, value_parser = check::usize_in!(1..))]
+    /// Training epochs (≥ 1; 0 with --init: no float training, e.g. QAT alone).
+    #[arg(long, default_value_t = 60, value_parser = check::usize_in!(0..))]
     pub epochs: usize,
+    /// Start the (fine-)tuning from this checkpoint's weights and normalisation instead of a
+    /// fresh or pre-trained model (pre-training is skipped).
+    #[arg(long)]
+    pub init: Option<PathBuf>,
     /// Early stopping: epochs without a better validation loss.
     #[arg(long, default_value_t = 10)]
     pub patience: usize,
@@ -173,6 +177,10 @@ pub struct Args {
     /// validation loss alone).
     #[arg(long)]
     pub qat_agreement_data: Option<PathBuf>,
+    /// QAT: penalise |c| beyond this bound in the loss and fine-tune in the cell format that
+    /// covers 1.25× it, so that the blob gets a finer cell format (0 = off: the calibrated one).
+    #[arg(long, default_value_t = 0.0, value_parser = check::non_negative)]
+    pub qat_cell_max: f64,
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
@@ -221,6 +229,17 @@ pub fn load_real_trials(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Tri
 
 fn refs(v: &[Sequence]) -> Vec<&ChannelSequence> {
     v.iter().map(|s| &s.cs).collect()
+}
+
+/// What [`Run::qat`] returns.
+struct QatRun {
+    model: FloatModel,
+    /// The checkpoint's `qat` note.
+    note: String,
+    /// The kept QAT epoch (0 = the input weights, snapped).
+    best_epoch: usize,
+    seconds_per_epoch: f64,
+    history: Vec<EpochLog>,
 }
 
 struct Run<'a> {
@@ -278,9 +297,8 @@ impl Run<'_> {
     }
 
     /// Quantization-aware fine-tuning of `model` (`--qat-epochs`), with the cell format the
-    /// blob gets from `calib`; prints max |Δp| of the blob against the float model before and
-    /// after on the validation sequences. Returns the model, (the checkpoint note, the best QAT
-    /// epoch, 0 = the float weights kept), seconds per epoch and the epochs' log.
+    /// blob gets from `calib` (or from `--qat-cell-max`); prints max |Δp| of the blob against the
+    /// float model before and after on the validation sequences.
     fn qat(
         &self,
         what: &str,
@@ -289,15 +307,23 @@ impl Run<'_> {
         val: &[&ChannelSequence],
         calib: &[&[f32]],
         agreement: Vec<Vec<f32>>,
-    ) -> anyhow::Result<(FloatModel, (String, usize), f64, Vec<EpochLog>)> {
-        let bits = slipguard_core::quantize::quantize(model, calib, None)?
-            .1
-            .cell_frac_bits;
+    ) -> anyhow::Result<QatRun> {
+        let bits = if self.a.qat_cell_max > 0.0 {
+            let c = slipguard_core::quantize::cell_bits_for(
+                self.a.qat_cell_max as f32 * slipguard_core::quantize::CELL_HEADROOM,
+            );
+            vec![c; model.lstms.len()]
+        } else {
+            slipguard_core::quantize::quantize(model, calib, None)?
+                .1
+                .cell_frac_bits
+        };
         let qc = QatConfig {
             epochs: self.a.qat_epochs,
             lr: self.a.qat_lr,
             cell_frac_bits: bits.clone(),
             max_dp: self.a.qat_max_dp as f32,
+            cell_max: self.a.qat_cell_max as f32,
             agreement,
         };
         let n_agree = qc.agreement.len();
@@ -351,7 +377,13 @@ impl Run<'_> {
                 "  {what}: note: after QAT the calibration picks cell bits {bits_after:?}, not the {bits:?} fine-tuned with"
             );
         }
-        Ok((out.model, (note, out.best_epoch), spe, out.history))
+        Ok(QatRun {
+            model: out.model,
+            note,
+            best_epoch: out.best_epoch,
+            seconds_per_epoch: spe,
+            history: out.history,
+        })
     }
 
     fn decision(
@@ -465,6 +497,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.sensor == Sensor::Force {
         check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
     }
+    anyhow::ensure!(
+        a.epochs > 0 || a.init.is_some(),
+        "--epochs 0 trains nothing: give --init CKPT (e.g. for QAT alone) or at least 1 epoch"
+    );
     anyhow::ensure!(
         a.cv != 1,
         "--cv 1: cross-validation needs 0 (off) or 2 to the number of real trials folds"
@@ -627,7 +663,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
         // Pre-training on simulated trials, shared by all folds.
         let mut timing = Vec::new();
-        let pre = if sim_pre.is_empty() {
+        let pre = if let Some(p) = &a.init {
+            let ck = checkpoint::read(p).with_context(|| format!("--init {}", p.display()))?;
+            anyhow::ensure!(
+                ck.model.config.variant == v
+                    && ck.model.config.sample_rate_mhz == config.sample_rate_mhz,
+                "--init {}: a {} model at {} Hz, not the {} at {} Hz being trained",
+                p.display(),
+                ck.model.config.variant.name(),
+                ck.model.config.sample_rate_mhz as f64 / 1000.0,
+                v.name(),
+                config.sample_rate_mhz as f64 / 1000.0
+            );
+            let mut m = ck.model;
+            m.config.name = config.name;
+            Some(m)
+        } else if sim_pre.is_empty() {
             None
         } else {
             let all = refs(&sim_pre);
@@ -680,8 +731,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             } else {
                 "train".to_string()
             };
-            let (mut model, mut best_epoch, spe, mut history) =
-                run.fit(&what, &init, &tr, &val, &run.tc)?;
+            let (mut model, mut best_epoch, spe, mut history) = if a.epochs == 0 {
+                (init.clone(), 0, 0.0, Vec::new())
+            } else {
+                run.fit(&what, &init, &tr, &val, &run.tc)?
+            };
             timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
             let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
             let mut qat_note = None;
@@ -697,19 +751,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                             .map(|(_, s)| s.clone())
                     })
                     .collect();
-                let (m, note, qspe, qhist) =
-                    run.qat(&what, &model, &tr, &val, &calib, agreement)?;
-                timing.push(format!("{what} QAT {qspe:.2} s/epoch"));
-                if note.1 > 0 {
-                    best_epoch = history.len() + note.1;
+                let q = run.qat(&what, &model, &tr, &val, &calib, agreement)?;
+                timing.push(format!("{what} QAT {:.2} s/epoch", q.seconds_per_epoch));
+                if q.best_epoch > 0 {
+                    best_epoch = history.len() + q.best_epoch;
                 }
                 let n_float = history.len();
-                history.extend(qhist.iter().map(|l| EpochLog {
+                history.extend(q.history.iter().map(|l| EpochLog {
                     epoch: n_float + l.epoch,
                     ..*l
                 }));
-                model = m;
-                qat_note = Some(note.0);
+                model = q.model;
+                qat_note = Some(q.note);
             }
             let val_seqs: Vec<&Sequence> = real
                 .iter()
