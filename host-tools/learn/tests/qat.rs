@@ -92,3 +92,48 @@ fn snapped_weights_quantize_to_the_same_blob_weights() {
         assert_eq!(a.dense.weights, b.dense.weights);
     }
 }
+
+/// The epoch kept with agreement recordings: with a bound no epoch meets, the one whose blob
+/// follows its float checkpoint most closely on them; every epoch's figure is reported, and the
+/// kept model's own agreement is that figure.
+#[test]
+fn qat_keeps_the_epoch_closest_to_its_blob_when_none_is_within_the_bound() {
+    let seqs = sim_force_sequences(7, 4, 0.5, 16.7);
+    let data: Vec<&ChannelSequence> = seqs.iter().map(|s| &s.cs).take(8).collect();
+    let config = force_config(Variant::ForceStft, true, 8, "qat", 16_700);
+    let init = init_model(config, 3, &data);
+    let cfg = TrainConfig {
+        epochs: 3,
+        batch: 4,
+        lr: 2e-2,
+        patience: 100,
+        ..TrainConfig::default()
+    };
+    let float = train(&init, &data, &[], &cfg, |_| {}).unwrap().model;
+    let agreement: Vec<Vec<f32>> = data.iter().map(|s| s.samples.clone()).collect();
+    let bits = vec![9u8];
+    let qc = QatConfig {
+        epochs: 3,
+        lr: 5e-3,
+        cell_frac_bits: bits.clone(),
+        agreement: agreement.clone(),
+        max_dp: 0.0,
+        cell_max: 0.0,
+    };
+    let out = qat_finetune(&float, &data, &[], &cfg, &qc, |_| {}).unwrap();
+    assert_eq!(out.agreement.len(), 4, "{:?}", out.agreement);
+    let (kept, min) = out
+        .agreement
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))
+        .unwrap();
+    println!(
+        "per epoch {:?}, kept {}",
+        out.agreement, out.trained.best_epoch
+    );
+    assert_eq!(out.trained.best_epoch, kept);
+    let own =
+        slipguard_learn::qat::max_dp_blob_vs_float(&out.trained.model, &bits, &agreement).unwrap();
+    assert!((own - min).abs() < 1e-6, "{own} vs {min}");
+}
