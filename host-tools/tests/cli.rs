@@ -152,7 +152,7 @@ fn integer_arguments_out_of_range_are_refused_before_work() {
     );
     refused(
         &["train", "--epochs", "0", "--out", "/nonexistent/x"],
-        &["--epochs", "'0'", "1.."],
+        &["--epochs 0", "--init", "at least 1 epoch"],
     );
     refused(
         &["closed-loop", "--trials", "0"],

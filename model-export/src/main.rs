@@ -406,6 +406,21 @@ fn run_export(a: ExportArgs) -> Result<()> {
             );
             if let Some(w) = &r.weight_loss {
                 eprintln!("hint: {}", w.remedy);
+                for t in w.tensors.iter().filter(|t| !t.remedy.is_empty()) {
+                    let rows: Vec<String> = t
+                        .dominant_rows
+                        .iter()
+                        .map(|r| format!("{} ({})", r.row, r.role))
+                        .collect();
+                    eprintln!(
+                        "hint: {} (max |Δp| {:.3} alone; rows {} carry {:.0} % of its error): {}",
+                        t.tensor,
+                        t.max_abs_dp,
+                        rows.join(", "),
+                        100.0 * t.dominant_share,
+                        t.remedy
+                    );
+                }
             }
         }
     } else {

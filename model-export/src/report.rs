@@ -216,19 +216,41 @@ impl ExportReport {
             _ => s.push_str("Not measured (no `--data`).\n"),
         }
         if let Some(w) = &self.weight_loss {
-            s.push_str("\n## Where the loss comes from\n\nThe float model with one tensor rounded as the blob stores it, on the same recordings:\n\n| tensor | max \\|Δp\\| | worst rows (row: max \\|Δw\\|, max \\|w\\|) | worst row max \\|w\\| / median |\n|---|---:|---|---:|\n");
+            s.push_str("\n## Where the loss comes from\n\nThe float model with one tensor rounded as the blob stores it, on the same recordings; the rows whose rounding moves their output (gate pre-activation or logit) most, as RMS in Q3.12 LSBs and share of the tensor's error; and the remedy per tensor:\n\n| tensor | max \\|Δp\\| | dominant rows (row, role: RMS LSB, share, max \\|w\\|) | top rows' share | largest rounding error (row: max \\|Δw\\|, max \\|w\\|) | worst row max \\|w\\| / median | remedy |\n|---|---:|---|---:|---|---:|---|\n");
             for t in &w.tensors {
                 let rows: Vec<String> = t
                     .worst_rows
                     .iter()
                     .map(|(r, e, m)| format!("{r}: {e:.2e}, {m:.3}"))
                     .collect();
+                let dom: Vec<String> = t
+                    .dominant_rows
+                    .iter()
+                    .map(|r| {
+                        format!(
+                            "{} ({}): {:.2}, {:.0} %, {:.3}",
+                            r.row,
+                            r.role,
+                            r.rms_error_lsb,
+                            100.0 * r.share,
+                            r.max_abs_w
+                        )
+                    })
+                    .collect();
+                let share = if t.dominant_rows.is_empty() {
+                    String::new()
+                } else {
+                    format!("{:.0} %", 100.0 * t.dominant_share)
+                };
                 s.push_str(&format!(
-                    "| {} | {:.4} | {} | {:.1} |\n",
+                    "| {} | {:.4} | {} | {} | {} | {:.1} | {} |\n",
                     t.tensor,
                     t.max_abs_dp,
+                    dom.join("; "),
+                    share,
                     rows.join("; "),
-                    t.outlier_ratio
+                    t.outlier_ratio,
+                    t.remedy
                 ));
             }
             s.push_str(&format!(
@@ -266,6 +288,30 @@ pub struct TensorLoss {
     /// max |w| of the worst row over the median row's max |w| (an outlier row sets a coarse
     /// scale for its whole row).
     pub outlier_ratio: f32,
+    /// The rows whose rounding moves their output most on the recordings (largest first).
+    pub dominant_rows: Vec<RowLoss>,
+    /// Share of the tensor's output error (Σ over rows of the mean squared error) that
+    /// [`Self::dominant_rows`] carry, 0…1.
+    pub dominant_share: f64,
+    /// What to do about this tensor.
+    pub remedy: String,
+}
+
+/// How much one row's int8 rounding moves the row's output on the recordings.
+#[derive(Clone, Debug, Serialize)]
+pub struct RowLoss {
+    /// Row of the tensor (LSTM rows: gate·H + unit).
+    pub row: usize,
+    /// What the row computes: `i 37` (gate and unit of an LSTM row), `logit 1` (dense).
+    pub role: String,
+    /// RMS over the recordings' steps of Σ_j Δw_rj·in_j(t), the error the rounding adds to the
+    /// row's output (an LSTM gate's pre-activation or a logit), in Q3.12 LSBs (1/4096): the
+    /// blob's own arithmetic rounds that output to 0.5 LSB RMS at best.
+    pub rms_error_lsb: f64,
+    /// Share of the tensor's output error this row carries, 0…1.
+    pub share: f64,
+    /// max |w| of the row.
+    pub max_abs_w: f32,
 }
 
 /// Per LSTM (W_ih, W_hh), then the dense weight, each row-major in the float model's layout.
@@ -345,6 +391,170 @@ fn row_stats(name: String, f: &[f32], q: &[f32], cols: usize, max_dp: f32) -> Te
         max_abs_dp: max_dp,
         worst_rows: stats,
         outlier_ratio,
+        dominant_rows: Vec::new(),
+        dominant_share: 0.0,
+        remedy: String::new(),
+    }
+}
+
+/// Second moments E[in·inᵀ] of a layer's inputs over the recordings' steps (row-major n × n).
+struct Moments {
+    n: usize,
+    sum: Vec<f64>,
+    steps: usize,
+}
+
+impl Moments {
+    fn new(n: usize) -> Self {
+        Self {
+            n,
+            sum: vec![0.0; n * n],
+            steps: 0,
+        }
+    }
+    fn add(&mut self, v: &[f32]) {
+        for (i, &a) in v.iter().enumerate() {
+            if a == 0.0 {
+                continue;
+            }
+            let row = &mut self.sum[i * self.n..(i + 1) * self.n];
+            for (s, &b) in row.iter_mut().zip(v) {
+                *s += a as f64 * b as f64;
+            }
+        }
+        self.steps += 1;
+    }
+    /// E[(d·in)²] = dᵀ E[in·inᵀ] d.
+    fn quadratic(&self, d: &[f64]) -> f64 {
+        if self.steps == 0 {
+            return 0.0;
+        }
+        let mut q = 0.0;
+        for (i, &a) in d.iter().enumerate() {
+            if a != 0.0 {
+                let row = &self.sum[i * self.n..(i + 1) * self.n];
+                q += a * row.iter().zip(d).map(|(s, b)| s * b).sum::<f64>();
+            }
+        }
+        q / self.steps as f64
+    }
+}
+
+/// Most steps the row analysis looks at (evenly strided over the recordings).
+const ROW_STEPS: usize = 8_000;
+
+/// Per tensor (in [`weight_loss`]'s order: per LSTM W_ih, W_hh, then the dense weight), the
+/// rows whose rounding moves their output most: Σ_j Δw_rj·in_j(t) over the inputs the float
+/// model sees on `seqs` (x for W_ih, h(t−1) for W_hh, h(t) for the dense layer).
+fn dominant_rows(
+    float: &FloatModel,
+    stored: &StoredWeights,
+    seqs: &[&[f32]],
+) -> Vec<(Vec<RowLoss>, f64)> {
+    let total: usize = seqs.iter().map(|s| s.len()).sum();
+    let stride = total.div_ceil(ROW_STEPS).max(1);
+    let split = float.config.lstm_inputs(0);
+    let mut m_ih: Vec<Moments> = float.lstms.iter().map(|l| Moments::new(l.input)).collect();
+    let mut m_hh: Vec<Moments> = float.lstms.iter().map(|l| Moments::new(l.hidden)).collect();
+    let mut m_d = Moments::new(float.dense.inputs);
+    let mut t = 0usize;
+    for s in seqs {
+        let mut st = float.new_channel();
+        for &raw in *s {
+            let take = t.is_multiple_of(stride);
+            t += 1;
+            let v = float.features(&mut st, raw);
+            if take {
+                for (k, m) in m_ih.iter_mut().enumerate() {
+                    let x = match (float.lstms.len(), k) {
+                        (1, _) => &v[..],
+                        (_, 0) => &v[..split.min(v.len())],
+                        _ => &v[split.min(v.len())..],
+                    };
+                    m.add(x);
+                    m_hh[k].add(&st.lstm[k].h);
+                }
+            }
+            float.logits(&mut st, &v);
+            if take {
+                let h: Vec<f32> = st.lstm.iter().flat_map(|l| l.h.iter().copied()).collect();
+                m_d.add(&h);
+            }
+        }
+    }
+    let rows_of =
+        |f: &[f32], q: &[f32], cols: usize, m: &Moments, role: &dyn Fn(usize) -> String| {
+            let mut rows: Vec<RowLoss> = f
+                .chunks(cols.max(1))
+                .zip(q.chunks(cols.max(1)))
+                .enumerate()
+                .map(|(r, (a, b))| {
+                    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| (*y - *x) as f64).collect();
+                    RowLoss {
+                        row: r,
+                        role: role(r),
+                        // Mean squared error for now; the RMS in LSBs below.
+                        rms_error_lsb: m.quadratic(&d).max(0.0),
+                        share: 0.0,
+                        max_abs_w: a.iter().fold(0f32, |m, x| m.max(x.abs())),
+                    }
+                })
+                .collect();
+            let sum: f64 = rows.iter().map(|r| r.rms_error_lsb).sum();
+            for r in &mut rows {
+                r.share = if sum > 0.0 {
+                    r.rms_error_lsb / sum
+                } else {
+                    0.0
+                };
+                r.rms_error_lsb = r.rms_error_lsb.sqrt() * 4096.0;
+            }
+            rows.sort_by(|a, b| b.share.total_cmp(&a.share));
+            rows.truncate(3);
+            let share = rows.iter().map(|r| r.share).sum();
+            (rows, share)
+        };
+    let mut out = Vec::new();
+    for (k, (l, (w_ih, w_hh))) in float.lstms.iter().zip(&stored.0).enumerate() {
+        let h = l.hidden;
+        let gate = move |r: usize| {
+            format!(
+                "{} {}",
+                ["i", "f", "g", "o"][(r / h.max(1)).min(3)],
+                r % h.max(1)
+            )
+        };
+        out.push(rows_of(&l.w_ih, w_ih, l.input, &m_ih[k], &gate));
+        out.push(rows_of(&l.w_hh, w_hh, h, &m_hh[k], &gate));
+    }
+    out.push(rows_of(
+        &float.dense.w,
+        &stored.1,
+        float.dense.inputs,
+        &m_d,
+        &|r| format!("logit {r}"),
+    ));
+    out
+}
+
+/// The remedy for one tensor's share of the loss (the whole blob's is [`WeightLoss::remedy`]).
+fn tensor_remedy(t: &TensorLoss) -> String {
+    if t.max_abs_dp <= 0.2 * crate::calib::MAX_DP {
+        return format!(
+            "none needed: its rounding alone moves p by at most {:.4}",
+            t.max_abs_dp
+        );
+    }
+    let few = t.dominant_share >= 0.5 && t.outlier_ratio >= 3.0;
+    if few {
+        format!(
+            "{:.0} % of its error in {} rows with outlier weights (up to {:.1}× the median row's max |w|); per-row scales are already in place, so: QAT in our trainer on your data (`slipguard train --qat-epochs`), or weight decay / clipping of those rows",
+            100.0 * t.dominant_share,
+            t.dominant_rows.len(),
+            t.outlier_ratio
+        )
+    } else {
+        "its error is spread over the rows (per-row scales are already in place): QAT in our trainer on your data (`slipguard train --qat-epochs`)".into()
     }
 }
 
@@ -386,6 +596,7 @@ pub fn weight_loss(
         float.dense.inputs,
         dp,
     ));
+    let dense_q = dense.clone();
     all.dense.w = dense;
     let all_dp = max_dp(float, &all, seqs);
     let worst = out
@@ -412,11 +623,22 @@ pub fn weight_loss(
             "the weights rounded alone give {all_dp:.3} of the blob's {blob_max_abs_dp:.3}: the rest is the fixed-point arithmetic; try a wider or finer cell format (--cell-bits, now {cell_frac_bits:?}) and calibrate on recordings that cover the whole use (after the release too)"
         ),
     };
+    for (t, (rows, share)) in out
+        .iter_mut()
+        .zip(dominant_rows(float, &(stored, dense_q), seqs))
+    {
+        t.dominant_rows = rows;
+        t.dominant_share = share;
+        t.remedy = tensor_remedy(t);
+    }
     out.push(TensorLoss {
         tensor: "all int8 weights".into(),
         max_abs_dp: all_dp,
         worst_rows: Vec::new(),
         outlier_ratio: 0.0,
+        dominant_rows: Vec::new(),
+        dominant_share: 0.0,
+        remedy: String::new(),
     });
     WeightLoss {
         tensors: out,
@@ -465,5 +687,91 @@ mod tests {
             check(&l.w_hh, w_hh, l.hidden);
         }
         check(&model.dense.w, &dense, model.dense.inputs);
+    }
+
+    /// A recording-like trace: a grasp, a hold with a slow wobble, a release.
+    fn trace(k: usize) -> Vec<f32> {
+        (0..240)
+            .map(|t| {
+                let t = t as f32;
+                let hold = if (20.0..200.0).contains(&t) {
+                    3000.0 + 400.0 * k as f32
+                } else {
+                    0.0
+                };
+                hold + 300.0 * (t * 0.21 + k as f32).sin() + 150.0 * (t * 0.05).cos()
+            })
+            .collect()
+    }
+
+    /// One weight of row 37 of W_hh made an outlier (20× the row's largest): the row's int8
+    /// step grows 20-fold, and the row analysis must name row 37 as the one that dominates
+    /// W_hh's output error (measured: 69 % of it, 70 LSB RMS against the next row's 15), with the
+    /// outlier remedy when the tensor matters. Without the outlier another row leads (10 %).
+    #[test]
+    fn an_outlier_row_dominates_its_tensor_and_gets_the_outlier_remedy() {
+        let src = crate::pipeline::ModelSource {
+            path: std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("tests/fixtures/torch_c.safetensors"),
+            ..Default::default()
+        };
+        let clean = crate::pipeline::load_float(&src).expect("load").model;
+        let traces: Vec<Vec<f32>> = (0..4).map(trace).collect();
+        let seqs: Vec<&[f32]> = traces.iter().map(|t| t.as_slice()).collect();
+        let run = |model: &FloatModel| {
+            let (bytes, _, _) =
+                crate::pipeline::quantize_calibrated(model, &seqs, None, true).expect("q");
+            let aligned = AlignedBlob::new(&bytes);
+            let blob = aligned.parse().expect("parse");
+            // A blob over the bound, so that every tensor gets a remedy.
+            weight_loss(model, &blob, &seqs, 0.2, &[11])
+        };
+        let w = run(&clean);
+        let hh = |w: &WeightLoss| {
+            w.tensors
+                .iter()
+                .find(|t| t.tensor == "lstm0.weight_hh_l0")
+                .cloned()
+                .unwrap()
+        };
+        let before = hh(&w);
+        println!("clean: {:?}", before.dominant_rows);
+        assert_eq!(before.dominant_rows.len(), 3);
+        assert_ne!(before.dominant_rows[0].row, 37);
+        let mut m = clean.clone();
+        let h = m.lstms[0].hidden;
+        let row = &mut m.lstms[0].w_hh[37 * h..38 * h];
+        let big = row.iter().fold(0f32, |a, x| a.max(x.abs()));
+        row[5] = 20.0 * big;
+        let after = hh(&run(&m));
+        println!(
+            "outlier: {:?}, share {:.3}, remedy {}",
+            after.dominant_rows, after.dominant_share, after.remedy
+        );
+        assert_eq!(after.dominant_rows[0].row, 37);
+        assert_eq!(
+            after.dominant_rows[0].role,
+            format!("{} {}", ["i", "f", "g", "o"][37 / h], 37 % h)
+        );
+        assert!(
+            after.dominant_rows[0].share > 0.5,
+            "{:?}",
+            after.dominant_rows
+        );
+        // The remedy rule, for a tensor that matters (max |Δp| alone over 0.01): the outlier
+        // row gets the outlier remedy, the clean tensor the spread-out one; one that does not
+        // matter none.
+        assert!(after.remedy.starts_with("none needed"), "{}", after.remedy);
+        let matters = |t: &TensorLoss| {
+            tensor_remedy(&TensorLoss {
+                max_abs_dp: 0.1,
+                ..t.clone()
+            })
+        };
+        assert!(matters(&after).contains("outlier"), "{}", matters(&after));
+        assert!(matters(&before).contains("spread"), "{}", matters(&before));
+        // Every share in 0…1, the top rows' share their sum.
+        let sum: f64 = after.dominant_rows.iter().map(|r| r.share).sum();
+        assert!((sum - after.dominant_share).abs() < 1e-9 && sum <= 1.0 + 1e-9);
     }
 }

@@ -111,8 +111,11 @@ fn mantissa_shift(x: f64, limit: i64) -> (i32, i32) {
     ((x * 2f64.powi(shift)).round() as i32, shift)
 }
 
-/// Symmetric int8 quantization of one row: (q, scale).
-fn quantize_row(row: &[f32]) -> (Vec<i8>, f32) {
+/// Symmetric int8 quantization of one row: (q, scale), scale = max|row| / 127 (1 for a zero
+/// row); the blob stores q and the row's scale, so `q · scale` is the weight the core computes
+/// with. The one home of the weight rounding rule (the trainer's quantization-aware fine-tuning
+/// fakes the rounding with it).
+pub fn quantize_row(row: &[f32]) -> (Vec<i8>, f32) {
     let max = row.iter().fold(0f32, |a, w| a.max(w.abs()));
     let scale = if max > 0.0 { max / 127.0 } else { 1.0 };
     (

@@ -1,4 +1,5 @@
-//! slipguard learning: the paper's LSTM variants trained with candle ([`train`]), float
+//! slipguard learning: the paper's LSTM variants trained with candle ([`train`]) and fine-tuned
+//! with the blob's arithmetic ([`qat`]), float
 //! checkpoints in safetensors ([`checkpoint`]), the paper's Table I baselines
 //! ([`baselines`]) and the evaluation of float and quantized models ([`evaluation`]).
 //!
@@ -9,6 +10,7 @@ pub mod checkpoint;
 pub mod error;
 pub mod evaluation;
 pub mod product;
+pub mod qat;
 pub mod train;
 
 pub use error::{LearnError, Result};

@@ -130,9 +130,10 @@ pub fn features(model: &FloatModel, samples: &[f32]) -> Vec<Vec<f32>> {
     v
 }
 
-struct Prepared {
-    feats: Vec<Vec<Vec<f32>>>,
-    labels: Vec<Vec<u32>>,
+/// Features and training labels of a set of sequences.
+pub(crate) struct Prepared {
+    pub(crate) feats: Vec<Vec<Vec<f32>>>,
+    pub(crate) labels: Vec<Vec<u32>>,
 }
 
 fn prepare(model: &FloatModel, seqs: &[&ChannelSequence], lead: usize) -> Prepared {
@@ -246,14 +247,15 @@ fn extract(base: &FloatModel, varmap: &VarMap) -> Result<FloatModel> {
     Ok(m)
 }
 
-struct Batch {
-    x: Tensor,
-    y: Tensor,
-    w: Tensor,
-    wsum: f64,
+/// One batch: features [B, T, F], labels and loss weights [B, T] (0 past a sequence's end).
+pub(crate) struct Batch {
+    pub(crate) x: Tensor,
+    pub(crate) y: Tensor,
+    pub(crate) w: Tensor,
+    pub(crate) wsum: f64,
 }
 
-fn make_batch(
+pub(crate) fn make_batch(
     p: &Prepared,
     idx: &[usize],
     nf: usize,

@@ -66,7 +66,7 @@ pub enum Command {
     #[command(
         after_help = "Examples:\n  slipguard train --variant lstm --hidden 32 --epochs 5 --out runs/quick\n  slipguard train --variant all --cv 5 --tune-decision --out runs/cv"
     )]
-    Train(train::Args),
+    Train(Box<train::Args>),
     /// Evaluate checkpoints (float and quantized) on real held-out and simulated data.
     #[command(
         after_help = "Example:\n  slipguard eval models/hand-force/hand-force.safetensors runs/cv/lstm"
@@ -91,7 +91,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Monitor(a) => monitor::run(a),
         Command::Replay(a) => replay::run(a),
         Command::ClosedLoop(a) => closed_loop::run(a),
-        Command::Train(a) => train::run(a),
+        Command::Train(a) => train::run(*a),
         Command::Eval(a) => eval::run(a),
         Command::Demo(a) => demo::run(a),
         Command::BenchHost(a) => bench_host::run(a),

@@ -17,6 +17,7 @@ use slipguard_learn::evaluation::{
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
 };
 use slipguard_learn::product::{self, OnsetRule};
+use slipguard_learn::qat::{QatConfig, blob_agreement, qat_finetune};
 use slipguard_learn::train::{EpochLog, Progress, TrainConfig, init_model, split_by_trial, train};
 
 use super::check;
@@ -52,9 +53,13 @@ pub struct Args {
     /// Learning rate (Adam), > 0.
     #[arg(long, default_value_t = 6e-4, value_parser = check::positive)]
     pub lr: f64,
-    /// Training epochs (≥ 1).
-    #[arg(long, default_value_t = 60, value_parser = check::usize_in!(1..))]
+    /// Training epochs (≥ 1; 0 with --init: no float training, e.g. QAT alone).
+    #[arg(long, default_value_t = 60, value_parser = check::usize_in!(0..))]
     pub epochs: usize,
+    /// Start the (fine-)tuning from this checkpoint's weights and normalisation instead of a
+    /// fresh or pre-trained model (pre-training is skipped).
+    #[arg(long)]
+    pub init: Option<PathBuf>,
     /// Early stopping: epochs without a better validation loss.
     #[arg(long, default_value_t = 10)]
     pub patience: usize,
@@ -154,6 +159,29 @@ pub struct Args {
     /// (the firmware's model state starts at the onset; this is for comparison only).
     #[arg(long)]
     pub from_grasp_start: bool,
+    /// Quantization-aware fine-tuning after the float training: this many epochs with the
+    /// blob's arithmetic in the forward pass (int8 weights by the quantizer's row rule, σ/tanh
+    /// tables, Q3.12/Q0.15 rounding, the calibrated cell format), straight-through gradients,
+    /// early stopping on the same validation set (0 = off).
+    #[arg(long, default_value_t = 0)]
+    pub qat_epochs: usize,
+    /// Learning rate (Adam) of the quantization-aware fine-tuning, > 0.
+    #[arg(long, default_value_t = 1e-4, value_parser = check::positive)]
+    pub qat_lr: f64,
+    /// QAT keeps the epoch with the lowest validation loss among those whose blob stays within
+    /// this max |Δp| of its float checkpoint over every step of the whole agreement recordings
+    /// (what `slipguard-export verify` measures; else the epoch closest to it), 0…1.
+    #[arg(long, default_value_t = 0.025, value_parser = check::unit)]
+    pub qat_max_dp: f64,
+    /// Recordings (unlabelled use: whole contact channels) for the QAT agreement check (default:
+    /// the real force trials, without the held-out ones in cross-validation; `none` = by
+    /// validation loss alone).
+    #[arg(long)]
+    pub qat_agreement_data: Option<PathBuf>,
+    /// QAT: penalise |c| beyond this bound in the loss and fine-tune in the cell format that
+    /// covers 1.25× it, so that the blob gets a finer cell format (0 = off: the calibrated one).
+    #[arg(long, default_value_t = 0.0, value_parser = check::non_negative)]
+    pub qat_cell_max: f64,
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
@@ -202,6 +230,17 @@ pub fn load_real_trials(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Tri
 
 fn refs(v: &[Sequence]) -> Vec<&ChannelSequence> {
     v.iter().map(|s| &s.cs).collect()
+}
+
+/// What [`Run::qat`] returns.
+struct QatRun {
+    model: FloatModel,
+    /// The checkpoint's `qat` note.
+    note: String,
+    /// The kept QAT epoch (0 = the input weights, snapped).
+    best_epoch: usize,
+    seconds_per_epoch: f64,
+    history: Vec<EpochLog>,
 }
 
 struct Run<'a> {
@@ -256,6 +295,96 @@ impl Run<'_> {
                 .map_or(f64::NAN, |l| l.val_loss)
         );
         Ok((out.model, out.best_epoch, spe, out.history))
+    }
+
+    /// Quantization-aware fine-tuning of `model` (`--qat-epochs`), with the cell format the
+    /// blob gets from `calib` (or from `--qat-cell-max`); prints max |Δp| of the blob against the
+    /// float model before and after on the validation sequences.
+    fn qat(
+        &self,
+        what: &str,
+        model: &FloatModel,
+        tr: &[&ChannelSequence],
+        val: &[&ChannelSequence],
+        calib: &[&[f32]],
+        agreement: Vec<Vec<f32>>,
+    ) -> anyhow::Result<QatRun> {
+        let bits = if self.a.qat_cell_max > 0.0 {
+            let c = slipguard_core::quantize::cell_bits_for(
+                self.a.qat_cell_max as f32 * slipguard_core::quantize::CELL_HEADROOM,
+            );
+            vec![c; model.lstms.len()]
+        } else {
+            slipguard_core::quantize::quantize(model, calib, None)?
+                .1
+                .cell_frac_bits
+        };
+        let qc = QatConfig {
+            epochs: self.a.qat_epochs,
+            lr: self.a.qat_lr,
+            cell_frac_bits: bits.clone(),
+            max_dp: self.a.qat_max_dp as f32,
+            cell_max: self.a.qat_cell_max as f32,
+            agreement,
+        };
+        let n_agree = qc.agreement.len();
+        let seqs: Vec<&[f32]> = val.iter().map(|s| s.samples.as_slice()).collect();
+        let before = blob_agreement(model, calib, &seqs)?;
+        let what = format!("{what} QAT");
+        let pb = bar(qc.epochs as u64, &what);
+        pb.enable_steady_tick(std::time::Duration::from_millis(500));
+        let out = qat_finetune(model, tr, val, &self.tc, &qc, |p| match p {
+            Progress::Batch {
+                epoch,
+                batch,
+                batches,
+                train_loss,
+            } => pb.set_message(format!(
+                "{what} epoch {epoch} batch {batch}/{batches} train loss {train_loss:.4}"
+            )),
+            Progress::Epoch(l) => {
+                pb.set_position(l.epoch as u64);
+                pb.set_message(format!(
+                    "{what} (epoch {}: val loss {:.4}, {:.1} s)",
+                    l.epoch, l.val_loss, l.seconds
+                ));
+            }
+        })?;
+        pb.finish_and_clear();
+        let dps = out.agreement.clone();
+        let out = out.trained;
+        let after = blob_agreement(&out.model, calib, &seqs)?;
+        let n = out.history.len();
+        let spe = out.history.iter().map(|l| l.seconds).sum::<f64>() / n.max(1) as f64;
+        let bits_after = slipguard_core::quantize::quantize(&out.model, calib, None)?
+            .1
+            .cell_frac_bits;
+        let dps: Vec<String> = dps.iter().map(|d| format!("{d:.4}")).collect();
+        let note = format!(
+            "{n} epochs, lr {}, cell bits {bits:?}, kept epoch {}; max |dp| blob vs float checkpoint over {n_agree} whole agreement recordings per epoch (0 = before QAT) [{}], bound {}; on {} validation sequences {:.4} -> {:.4} (blob vs the QAT forward {:.4} -> {:.4})",
+            qc.lr,
+            out.best_epoch,
+            dps.join(", "),
+            qc.max_dp,
+            seqs.len(),
+            before.float,
+            after.float,
+            before.fake_quant,
+            after.fake_quant
+        );
+        eprintln!("  {what}: {note} ({spe:.2} s/epoch)");
+        if bits_after != bits {
+            eprintln!(
+                "  {what}: note: after QAT the calibration picks cell bits {bits_after:?}, not the {bits:?} fine-tuned with"
+            );
+        }
+        Ok(QatRun {
+            model: out.model,
+            note,
+            best_epoch: out.best_epoch,
+            seconds_per_epoch: spe,
+            history: out.history,
+        })
     }
 
     fn decision(
@@ -369,6 +498,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.sensor == Sensor::Force {
         check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
     }
+    anyhow::ensure!(
+        a.epochs > 0 || a.init.is_some(),
+        "--epochs 0 trains nothing: give --init CKPT (e.g. for QAT alone) or at least 1 epoch"
+    );
     anyhow::ensure!(
         a.cv != 1,
         "--cv 1: cross-validation needs 0 (off) or 2 to the number of real trials folds"
@@ -487,6 +620,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             cl_mix.len()
         );
     }
+    // Whole recordings for the QAT agreement check (unlabelled use).
+    let agreement_trials: Vec<Trial> = match (&a.qat_agreement_data, a.sensor) {
+        _ if a.qat_epochs == 0 => Vec::new(),
+        (Some(p), _) if p.as_os_str() == "none" => Vec::new(),
+        (Some(p), _) => load_real_trials(Some(p))?.1,
+        (None, Sensor::Force) if !real_trials.is_empty() => real_trials.clone(),
+        (None, Sensor::Force) => load_real_trials(a.path.as_deref())?.1,
+        (None, Sensor::Suction) => Vec::new(),
+    };
+    if !agreement_trials.is_empty() {
+        eprintln!(
+            "QAT agreement check on the whole contact channels of {} recorded trials",
+            agreement_trials.len()
+        );
+    }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let mut summary = Vec::new();
     for v in variants {
@@ -519,7 +667,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
         // Pre-training on simulated trials, shared by all folds.
         let mut timing = Vec::new();
-        let pre = if sim_pre.is_empty() {
+        let pre = if let Some(p) = &a.init {
+            let ck = checkpoint::read(p).with_context(|| format!("--init {}", p.display()))?;
+            anyhow::ensure!(
+                ck.model.config.variant == v
+                    && ck.model.config.sample_rate_mhz == config.sample_rate_mhz,
+                "--init {}: a {} model at {} Hz, not the {} at {} Hz being trained",
+                p.display(),
+                ck.model.config.variant.name(),
+                ck.model.config.sample_rate_mhz as f64 / 1000.0,
+                v.name(),
+                config.sample_rate_mhz as f64 / 1000.0
+            );
+            let mut m = ck.model;
+            m.config.name = config.name;
+            Some(m)
+        } else if sim_pre.is_empty() {
             None
         } else {
             let all = refs(&sim_pre);
@@ -572,9 +735,39 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             } else {
                 "train".to_string()
             };
-            let (mut model, best_epoch, spe, history) =
-                run.fit(&what, &init, &tr, &val, &run.tc)?;
+            let (mut model, mut best_epoch, spe, mut history) = if a.epochs == 0 {
+                (init.clone(), 0, 0.0, Vec::new())
+            } else {
+                run.fit(&what, &init, &tr, &val, &run.tc)?
+            };
             timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
+            let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+            let mut qat_note = None;
+            if a.qat_epochs > 0 {
+                let agreement: Vec<Vec<f32>> = agreement_trials
+                    .iter()
+                    .filter(|t| !held.contains(&t.id))
+                    .flat_map(|t| {
+                        t.samples
+                            .iter()
+                            .enumerate()
+                            .filter(|(c, s)| t.contact.get(*c) == Some(&true) && !s.is_empty())
+                            .map(|(_, s)| s.clone())
+                    })
+                    .collect();
+                let q = run.qat(&what, &model, &tr, &val, &calib, agreement)?;
+                timing.push(format!("{what} QAT {:.2} s/epoch", q.seconds_per_epoch));
+                if q.best_epoch > 0 {
+                    best_epoch = history.len() + q.best_epoch;
+                }
+                let n_float = history.len();
+                history.extend(q.history.iter().map(|l| EpochLog {
+                    epoch: n_float + l.epoch,
+                    ..*l
+                }));
+                model = q.model;
+                qat_note = Some(q.note);
+            }
             let val_seqs: Vec<&Sequence> = real
                 .iter()
                 .chain(&sim_mix)
@@ -586,12 +779,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .iter()
                 .filter(|t| val_ids.contains(t.id.as_str()))
                 .collect();
-            let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
             run.decision(&mut model, &val_seqs, &val_trials, &calib)?;
             let mut extra = std::collections::BTreeMap::new();
             extra.insert("train_command".into(), run.command.clone());
             extra.insert("best_epoch".into(), best_epoch.to_string());
             extra.insert("seconds_per_epoch".into(), format!("{spe:.3}"));
+            if let Some(n) = qat_note {
+                extra.insert("qat".into(), n);
+            }
             let ids = |v: &[&ChannelSequence]| {
                 let mut ids: Vec<String> = v.iter().map(|s| s.trial_id.clone()).collect();
                 ids.sort();
@@ -648,7 +843,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 let p = a.out.join(format!("{name}.safetensors"));
                 checkpoint::write(&p, &ck)?;
                 write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
-                let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
                 let blob = quantize_model(&ck.model, &calib)?;
                 let bp = a.out.join(format!("{name}.bin"));
                 std::fs::write(&bp, &blob).with_context(|| format!("writing {}", bp.display()))?;
