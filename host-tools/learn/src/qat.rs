@@ -90,7 +90,7 @@ pub fn max_dp_blob_vs_float(
 pub fn blob_features(model: &FloatModel, samples: &[f32]) -> Vec<Vec<f32>> {
     use slipguard_core::features::{FeatureLayout, FeatureState, normalise, raw_features};
     let config = &model.config;
-    let layout = FeatureLayout::of(config);
+    let layout = config.feature_layout();
     let plan = if config.variant.uses_bands() {
         slipguard_core::features::stft::StftPlan::new(config.stft).ok()
     } else {
@@ -129,9 +129,9 @@ fn activation_table(tanh: bool, dev: &Device) -> candle_core::Result<Tensor> {
     let v: Vec<f32> = (i16::MIN..=i16::MAX)
         .map(|x| {
             let y = if tanh {
-                slipguard_core::activation::tanh(x)
+                slipguard_core::dsp::tanh(x)
             } else {
-                slipguard_core::activation::sigmoid(x)
+                slipguard_core::dsp::sigmoid(x)
             };
             y as f32 / 32768.0
         })
