@@ -88,7 +88,7 @@ pub fn max_dp_blob_vs_float(
 /// The features the blob's front end computes for one raw sequence (Q3.12 as reals, one row per
 /// step): the integer path of `slipguard_core::model::Model::p_unstable` up to the LSTM input.
 pub fn blob_features(model: &FloatModel, samples: &[f32]) -> Vec<Vec<f32>> {
-    use slipguard_core::features::{FeatureLayout, FeatureState, normalise, raw_features};
+    use slipguard_core::features::{FeatureState, normalise, raw_features};
     let config = &model.config;
     let layout = config.feature_layout();
     let plan = if config.variant.uses_bands() {
