@@ -28,8 +28,10 @@
 //!   [`batch_cell_update`] (the gate pass and the cell update, 8 lanes at a time with gathered
 //!   table lookups; the lanes and rows they leave, and every lane on other targets, run the
 //!   single path's code in [`crate::batch`]) and [`stft_bin_sums`], each an AVX2 path chosen
-//!   at run time (`is_x86_feature_detected!`). The portable pair-sum loop does not become VPMADDWD under LLVM (it gives
-//!   VPMULLD on widened lanes, about a third of the throughput), hence the intrinsics.
+//!   at run time (`is_x86_feature_detected!`); [`batch_pair_sums`] also has an AVX-512 F +
+//!   VNNI path (VPDPWSSD, 8 rows × 32 lanes), taken first where the CPU has it
+//!   ([`PairSumsPath`]). The portable pair-sum loop does not become VPMADDWD under LLVM (it
+//!   gives VPMULLD on widened lanes, about a third of the throughput), hence the intrinsics.
 //!
 //! The QEMU bench (`firmware/qemu-bench`) checks every assembly path against its reference.
 //!
@@ -1675,6 +1677,66 @@ pub fn madd_pair(a: u32, b: u32) -> i32 {
     (lo(a) * lo(b)).wrapping_add(hi(a) * hi(b))
 }
 
+/// Which code runs the whole tiles of [`batch_pair_sums`] (host, `std`): what
+/// [`batch_pair_sums_on`] returns and [`PairSumsPath::best`] detects. Every path gives the
+/// same numbers as [`batch_pair_sums_portable`].
+#[cfg(feature = "std")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum PairSumsPath {
+    /// [`batch_pair_sums_portable`], all in Rust.
+    Portable,
+    /// x86-64 AVX2: VPMADDWD + VPADDD tiles of 6 or 4 rows × 16 lanes.
+    Avx2,
+    /// x86-64 AVX-512 F + VNNI: VPDPWSSD (multiply-add and accumulate in one instruction)
+    /// tiles of 8 or 4 rows × 32 or 16 lanes, 32 registers.
+    Avx512Vnni,
+}
+
+#[cfg(feature = "std")]
+impl PairSumsPath {
+    /// The fastest path this CPU runs (detected at run time; cached by the standard library).
+    pub fn best() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx512f")
+                && std::is_x86_feature_detected!("avx512vnni")
+            {
+                return Self::Avx512Vnni;
+            }
+            if std::is_x86_feature_detected!("avx2") {
+                return Self::Avx2;
+            }
+        }
+        Self::Portable
+    }
+
+    /// Whether this CPU runs the path.
+    pub fn available(self) -> bool {
+        match self {
+            Self::Portable => true,
+            #[cfg(target_arch = "x86_64")]
+            Self::Avx2 => std::is_x86_feature_detected!("avx2"),
+            #[cfg(target_arch = "x86_64")]
+            Self::Avx512Vnni => {
+                std::is_x86_feature_detected!("avx512f")
+                    && std::is_x86_feature_detected!("avx512vnni")
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+
+    /// A short name for reports (`portable`, `avx2`, `avx512-vnni`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Portable => "portable",
+            Self::Avx2 => "avx2",
+            Self::Avx512Vnni => "avx512-vnni",
+        }
+    }
+}
+
 /// The batched LSTM's matrix product, many channels at once (host, `std`): for every row
 /// `r < out.len() / lanes` and lane `l < lanes`,
 /// `out[r·lanes + l] = Σ_p madd_pair(w[r·pairs + p], x[p·x_stride + l])` over `p < pairs`.
@@ -1685,10 +1747,12 @@ pub fn madd_pair(a: u32, b: u32) -> i32 {
 /// for int8 weights: < 2^23 per pair, < 2^30 for 128 pairs), so the order of summation does
 /// not change them: every path gives the same numbers as [`batch_pair_sums_portable`].
 ///
-/// On x86-64 with AVX2 (detected at run time), whole tiles of [`BATCH_TILE_ROWS`] rows ×
-/// [`BATCH_TILE_LANES`] lanes run in `x86::pair_sums_avx2`: per input pair 2 lane loads, 4
-/// broadcast weights, 8 VPMADDWD and 8 VPADDD (about 2 cycles per 128 multiply-adds); the
-/// rows and lanes outside whole tiles, and other targets, run the portable code.
+/// Runs [`PairSumsPath::best`] through [`batch_pair_sums_on`]: on x86-64 with AVX-512 F and
+/// VNNI, whole tiles of [`BATCH_TILE_ROWS`] rows × [`BATCH_TILE_LANES`] lanes in
+/// `x86::pair_sums_avx512` (per input pair and 8 rows × 32 lanes: 2 lane loads, 8 broadcast
+/// weights, 16 VPDPWSSD); with AVX2 only, in `x86::pair_sums_avx2` (per input pair and
+/// 4 rows × 16 lanes: 2 lane loads, 4 broadcast weights, 8 VPMADDWD and 8 VPADDD); the rows
+/// and lanes outside whole tiles, and other targets, run the portable code.
 #[cfg(feature = "std")]
 pub fn batch_pair_sums(
     w: &[u32],
@@ -1698,36 +1762,70 @@ pub fn batch_pair_sums(
     lanes: usize,
     out: &mut [i32],
 ) {
+    batch_pair_sums_on(PairSumsPath::best(), w, pairs, x, x_stride, lanes, out);
+}
+
+/// [`batch_pair_sums`] on the path `want` where this CPU has it, else on the best one below
+/// it (AVX-512 VNNI, then AVX2, then portable); returns the path that ran the whole tiles
+/// ([`PairSumsPath::Portable`] also when there are none, or the slices are too short for
+/// the kernels). The numbers are the same on every path; this is for tests and reports.
+#[cfg(feature = "std")]
+pub fn batch_pair_sums_on(
+    want: PairSumsPath,
+    w: &[u32],
+    pairs: usize,
+    x: &[u32],
+    x_stride: usize,
+    lanes: usize,
+    out: &mut [i32],
+) -> PairSumsPath {
     if lanes == 0 || pairs == 0 {
         out.fill(0);
-        return;
+        return PairSumsPath::Portable;
     }
     let rows = out.len() / lanes;
     let fits =
         x_stride >= lanes && w.len() >= rows * pairs && x.len() >= (pairs - 1) * x_stride + lanes;
     #[cfg(target_arch = "x86_64")]
-    if fits && std::is_x86_feature_detected!("avx2") {
+    if fits {
         let (tr, tl) = (
             rows / BATCH_TILE_ROWS * BATCH_TILE_ROWS,
             lanes / BATCH_TILE_LANES * BATCH_TILE_LANES,
         );
-        // SAFETY: AVX2 is present (detected above); the kernel reads w[..tr·pairs] and
-        // x[p·x_stride + l] for p < pairs, l < tl ≤ lanes, and writes out[r·lanes + l] for
-        // r < tr ≤ rows, l < tl: all inside the slices by `fits` and rows = out.len() / lanes.
-        unsafe { x86::pair_sums_avx2(w, pairs, x, x_stride, lanes, tr, tl, out) };
-        // The lanes past the last whole tile, then the rows past it.
-        if tl < lanes {
-            for r in 0..tr {
-                pair_sums_cell_range(w, pairs, x, x_stride, lanes, r, tl..lanes, out);
+        let ran = if want == PairSumsPath::Avx512Vnni && PairSumsPath::Avx512Vnni.available() {
+            // SAFETY: AVX-512 F and VNNI are present (detected above); the kernel reads
+            // w[..tr·pairs] and x[p·x_stride + l] for p < pairs, l < tl ≤ lanes, and writes
+            // out[r·lanes + l] for r < tr ≤ rows, l < tl: all inside the slices by `fits`
+            // and rows = out.len() / lanes.
+            unsafe { x86::pair_sums_avx512(w, pairs, x, x_stride, lanes, tr, tl, out) };
+            PairSumsPath::Avx512Vnni
+        } else if want != PairSumsPath::Portable && PairSumsPath::Avx2.available() {
+            // SAFETY: AVX2 is present (detected above); the same bounds as above.
+            unsafe { x86::pair_sums_avx2(w, pairs, x, x_stride, lanes, tr, tl, out) };
+            PairSumsPath::Avx2
+        } else {
+            PairSumsPath::Portable
+        };
+        if ran != PairSumsPath::Portable {
+            // The lanes past the last whole tile, then the rows past it.
+            if tl < lanes {
+                for r in 0..tr {
+                    pair_sums_cell_range(w, pairs, x, x_stride, lanes, r, tl..lanes, out);
+                }
             }
+            for r in tr..rows {
+                pair_sums_cell_range(w, pairs, x, x_stride, lanes, r, 0..lanes, out);
+            }
+            return if tr > 0 && tl > 0 {
+                ran
+            } else {
+                PairSumsPath::Portable
+            };
         }
-        for r in tr..rows {
-            pair_sums_cell_range(w, pairs, x, x_stride, lanes, r, 0..lanes, out);
-        }
-        return;
     }
-    let _ = fits;
+    let _ = (fits, want);
     batch_pair_sums_portable(w, pairs, x, x_stride, lanes, out);
+    PairSumsPath::Portable
 }
 
 /// The reference of [`batch_pair_sums`], all in Rust (missing weights or activations count 0).
@@ -1872,7 +1970,8 @@ mod x86 {
         _mm256_packs_epi32, _mm256_permute2x128_si256, _mm256_permute4x64_epi64,
         _mm256_permutevar8x32_epi32, _mm256_set1_epi32, _mm256_setr_epi32, _mm256_setzero_si256,
         _mm256_sll_epi32, _mm256_sra_epi32, _mm256_srai_epi32, _mm256_srli_epi64,
-        _mm256_storeu_si256,
+        _mm256_storeu_si256, _mm512_dpwssd_epi32, _mm512_loadu_si512, _mm512_set1_epi32,
+        _mm512_setzero_si512, _mm512_storeu_si512,
     };
 
     /// 8 lanes of `table` lookups ([`crate::activation::lookup`]) at the Q3.12 inputs `x`
@@ -2125,6 +2224,102 @@ mod x86 {
         for r0 in (six..rows).step_by(BATCH_TILE_ROWS) {
             // SAFETY: rows r0..r0 + 4 ≤ rows (rows − six is a multiple of 4).
             unsafe { tile::<BATCH_TILE_ROWS>(w, pairs, x, x_stride, lanes, r0, tile_lanes, out) };
+        }
+    }
+
+    /// [`super::batch_pair_sums`] over rows `..rows` (a multiple of [`BATCH_TILE_ROWS`]) and
+    /// lanes `..tile_lanes` (a multiple of [`BATCH_TILE_LANES`]) with AVX-512 F and VNNI:
+    /// tiles of 8 rows while they fit (then one of 4) × 32 lanes (then one of 16), one
+    /// VPDPWSSD per row and 16 lanes and input pair, each weight word broadcast once per
+    /// tile row: 16 accumulators, 2 activation loads per 16 VPDPWSSD.
+    ///
+    /// # Safety
+    /// AVX-512 F and VNNI must be available; `w.len() ≥ rows·pairs`, `x.len() ≥ (pairs − 1)·
+    /// x_stride + tile_lanes`, `out.len() ≥ (rows − 1)·lanes + tile_lanes`.
+    #[target_feature(enable = "avx512f,avx512vnni")]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) unsafe fn pair_sums_avx512(
+        w: &[u32],
+        pairs: usize,
+        x: &[u32],
+        x_stride: usize,
+        lanes: usize,
+        rows: usize,
+        tile_lanes: usize,
+        out: &mut [i32],
+    ) {
+        let eight = rows / 8 * 8;
+        let wide = tile_lanes / 32 * 32;
+        for r0 in (0..rows).step_by(BATCH_TILE_ROWS) {
+            let big = r0 < eight;
+            if big && r0 % 8 != 0 {
+                continue; // the second half of an 8-row tile
+            }
+            for l0 in (0..wide).step_by(32) {
+                // SAFETY: rows r0..r0 + 8 (or + 4) ≤ rows, lanes l0..l0 + 32 ≤ tile_lanes; the
+                // caller's contract for the rest.
+                unsafe {
+                    if big {
+                        tile512::<8, 2>(w, pairs, x, x_stride, lanes, r0, l0, out)
+                    } else {
+                        tile512::<4, 2>(w, pairs, x, x_stride, lanes, r0, l0, out)
+                    }
+                }
+            }
+            if wide < tile_lanes {
+                // SAFETY: as above, lanes wide..wide + 16 = tile_lanes.
+                unsafe {
+                    if big {
+                        tile512::<8, 1>(w, pairs, x, x_stride, lanes, r0, wide, out)
+                    } else {
+                        tile512::<4, 1>(w, pairs, x, x_stride, lanes, r0, wide, out)
+                    }
+                }
+            }
+        }
+    }
+
+    /// Rows `r0..r0 + R`, lanes `l0..l0 + 16·L` of [`pair_sums_avx512`]: R·L accumulators
+    /// over all pairs, then one store each.
+    ///
+    /// # Safety
+    /// As [`pair_sums_avx512`], with r0 + R ≤ its `rows` and l0 + 16·L ≤ its `tile_lanes`.
+    #[target_feature(enable = "avx512f,avx512vnni")]
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    unsafe fn tile512<const R: usize, const L: usize>(
+        w: &[u32],
+        pairs: usize,
+        x: &[u32],
+        x_stride: usize,
+        lanes: usize,
+        r0: usize,
+        l0: usize,
+        out: &mut [i32],
+    ) {
+        let (wp, xp, op) = (w.as_ptr(), x.as_ptr(), out.as_mut_ptr());
+        let mut acc = [[_mm512_setzero_si512(); L]; R];
+        for p in 0..pairs {
+            let mut xv = [_mm512_setzero_si512(); L];
+            for (j, v) in xv.iter_mut().enumerate() {
+                // SAFETY: p·x_stride + l0 + 16·L ≤ (pairs − 1)·x_stride + tile_lanes ≤ x.len()
+                // (caller's contract); unaligned load.
+                *v = unsafe { _mm512_loadu_si512(xp.add(p * x_stride + l0 + 16 * j).cast()) };
+            }
+            for (rr, a) in acc.iter_mut().enumerate() {
+                // SAFETY: (r0 + rr)·pairs + p < rows·pairs ≤ w.len().
+                let wv = _mm512_set1_epi32(unsafe { *wp.add((r0 + rr) * pairs + p) } as i32);
+                for (a, &v) in a.iter_mut().zip(&xv) {
+                    *a = _mm512_dpwssd_epi32(*a, wv, v);
+                }
+            }
+        }
+        for (rr, a) in acc.iter().enumerate() {
+            for (j, &v) in a.iter().enumerate() {
+                // SAFETY: (r0 + rr)·lanes + l0 + 16·L ≤ (rows − 1)·lanes + tile_lanes ≤
+                // out.len() (caller's contract); unaligned store.
+                unsafe { _mm512_storeu_si512(op.add((r0 + rr) * lanes + l0 + 16 * j).cast(), v) };
+            }
         }
     }
 

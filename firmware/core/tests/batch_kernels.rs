@@ -1,14 +1,16 @@
 //! The batched path's kernels (`slipguard_core::dsp`, host, with their callers in
-//! `slipguard_core::batch`): each run-time-chosen path (AVX2 on this machine) against the
-//! portable code, on random inputs over the admitted ranges,
-//! edge values and shapes with partial tiles. `batch_vs_single.rs` checks the whole batched
-//! step against the single path; these check the portable code other targets run, too.
+//! `slipguard_core::batch`): each run-time-chosen path (AVX-512 VNNI and AVX2 where the CPU
+//! has them; for the pair sums every path the CPU has, each shown to have run) against the
+//! portable code, on random inputs over the admitted ranges, edge values and shapes with
+//! partial tiles. `batch_vs_single.rs` checks the whole batched step against the single
+//! path; these check the portable code other targets run, too.
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use slipguard_core::batch::{cell_update, cell_update_portable, gate_rows, gate_rows_portable};
 use slipguard_core::blob::LstmRowParams;
 use slipguard_core::dsp::{
-    batch_pair_sums, batch_pair_sums_portable, stft_bin_sums, stft_bin_sums_portable,
+    PairSumsPath, batch_pair_sums, batch_pair_sums_on, batch_pair_sums_portable, stft_bin_sums,
+    stft_bin_sums_portable,
 };
 use slipguard_core::lstm::CellShifts;
 
@@ -19,6 +21,7 @@ fn pair(a: i16, b: i16) -> u32 {
 #[test]
 fn pair_sums_equal_the_portable_sums() {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let mut ran_on = std::collections::BTreeMap::new();
     // (rows, pairs, lanes, extra stride): whole and partial tiles of 6 and 4 rows, 16 lanes.
     for (rows, pairs, lanes, extra) in [
         (512, 70, 64, 0),
@@ -28,6 +31,8 @@ fn pair_sums_equal_the_portable_sums() {
         (4, 1, 16, 0),
         (2, 9, 33, 2),
         (36, 6, 48, 16),
+        (44, 5, 80, 3),
+        (12, 130, 112, 0),
     ] {
         let stride = lanes + extra;
         // int8 weights (−128 included) as i16 pairs, activations over the whole i16 range.
@@ -49,6 +54,22 @@ fn pair_sums_equal_the_portable_sums() {
             fast, slow,
             "rows {rows} pairs {pairs} lanes {lanes} stride {stride}"
         );
+        // Every path this CPU has, each one shown to have run (whole tiles exist here).
+        for path in PAIR_PATHS {
+            let mut got = vec![2i32; rows * lanes];
+            let ran = batch_pair_sums_on(path, &w, pairs, &x, stride, lanes, &mut got);
+            assert_eq!(
+                got, slow,
+                "{path:?}: rows {rows} pairs {pairs} lanes {lanes}"
+            );
+            let tiles = rows >= 4 && lanes >= 16;
+            if path.available() && tiles {
+                assert_eq!(ran, path, "rows {rows} lanes {lanes}");
+                *ran_on.entry(path.name()).or_insert(0) += 1;
+            } else if !tiles {
+                assert_eq!(ran, PairSumsPath::Portable, "rows {rows} lanes {lanes}");
+            }
+        }
         // One cell by hand: the definition.
         let (r, l) = (rows - 1, lanes - 1);
         let want: i64 = (0..pairs)
@@ -60,7 +81,28 @@ fn pair_sums_equal_the_portable_sums() {
             .sum();
         assert_eq!(fast[r * lanes + l] as i64, want);
     }
+    // The kernels this CPU has did run (on an AVX-512 VNNI machine both x86 paths), and the
+    // default path is the best one.
+    for path in PAIR_PATHS.into_iter().filter(|p| p.available()) {
+        assert!(
+            ran_on.get(path.name()).copied().unwrap_or(0) >= 5,
+            "{ran_on:?}"
+        );
+    }
+    let best = PairSumsPath::best();
+    assert!(best.available());
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vnni") {
+        assert_eq!(best, PairSumsPath::Avx512Vnni);
+    }
+    eprintln!("pair-sum paths run: {ran_on:?}, default {}", best.name());
 }
+
+const PAIR_PATHS: [PairSumsPath; 3] = [
+    PairSumsPath::Portable,
+    PairSumsPath::Avx2,
+    PairSumsPath::Avx512Vnni,
+];
 
 #[test]
 fn gate_rows_equal_the_portable_gate_rows() {

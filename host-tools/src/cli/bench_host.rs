@@ -5,7 +5,9 @@
 //! from `scripts/bench_torch_lstm.py` given with `--torch`).
 //!
 //! Each thread steps its own state of `batch` lanes for `--seconds`; a thread count of T
-//! counts T × batch channels. The last line is the summary:
+//! counts T × batch channels. Before the summary, one line times the LSTM's matrix product
+//! alone on every kernel path this CPU has (AVX-512 VNNI, AVX2, portable), in alternating
+//! turns, so that their ratio holds under a changing load. The last line is the summary:
 //! `host throughput: batched N channel-steps/s (2 threads), single M, ratio R`, N the best
 //! batch on 2 threads, M the single-step path on 2 threads.
 use std::path::{Path, PathBuf};
@@ -13,8 +15,9 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use slipguard_core::batch::BatchModel;
+use slipguard_core::batch::{BatchModel, CHUNK_LANES};
 use slipguard_core::blob::AlignedBlob;
+use slipguard_core::dsp::{PairSumsPath, batch_pair_sums_on};
 use slipguard_core::model::{ChannelState, Model, StepOutput};
 
 /// Variant (c) (force + d(t) + 10 STFT bands), hidden 128, random PyTorch-like weights: the
@@ -200,6 +203,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .find(|s| s.0 == 2)
         .map(|s| s.1)
         .unwrap_or(f64::NAN);
+    if let Some(&h) = cfg.hidden[..cfg.variant.lstm_count()].first() {
+        kernel_line(h as usize, dur);
+    }
     println!("best batch on 2 threads: {bb}");
     println!(
         "host throughput: batched {:.0} channel-steps/s (2 threads), single {:.0}, ratio {:.1}",
@@ -208,6 +214,69 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         n / m
     );
     Ok(())
+}
+
+/// The first LSTM's h-part matrix product alone (`dsp::batch_pair_sums_on`: 4H rows × H/2
+/// input pairs × one chunk of lanes) on 1 thread, on every path this CPU has, in ten turns
+/// each of a tenth of `dur` (so that a changing load meets the paths alike): multiply-adds
+/// per second of each, and the ratio of the first (fastest) path to the second.
+fn kernel_line(hidden: usize, dur: Duration) {
+    let (rows, pairs, lanes) = (4 * hidden, hidden.div_ceil(2), CHUNK_LANES);
+    let mut seed = 0x2545_f491_u32;
+    let mut next = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed
+    };
+    // int8 weights as i16 pairs, activations over the whole i16 range.
+    let w: Vec<u32> = (0..rows * pairs)
+        .map(|_| {
+            let r = next();
+            (r as i8 as i16 as u16 as u32) | ((r >> 8) as i8 as i16 as u16 as u32) << 16
+        })
+        .collect();
+    let x: Vec<u32> = (0..pairs * lanes).map(|_| next()).collect();
+    let mut out = vec![0i32; rows * lanes];
+    let paths: Vec<PairSumsPath> = [
+        PairSumsPath::Avx512Vnni,
+        PairSumsPath::Avx2,
+        PairSumsPath::Portable,
+    ]
+    .into_iter()
+    .filter(|p| p.available())
+    .collect();
+    let turn = dur / (10 * paths.len() as u32);
+    let mut done = vec![(0u64, Duration::ZERO); paths.len()];
+    for _ in 0..10 {
+        for (&p, d) in paths.iter().zip(done.iter_mut()) {
+            let t0 = Instant::now();
+            while t0.elapsed() < turn {
+                batch_pair_sums_on(p, &w, pairs, &x, lanes, lanes, &mut out);
+                std::hint::black_box(&mut out);
+                d.0 += 1;
+            }
+            d.1 += t0.elapsed();
+        }
+    }
+    let macs = (rows * pairs * 2 * lanes) as f64;
+    let g: Vec<f64> = done
+        .iter()
+        .map(|d| d.0 as f64 * macs / d.1.as_secs_f64() / 1e9)
+        .collect();
+    let each: Vec<String> = paths
+        .iter()
+        .zip(&g)
+        .map(|(p, g)| format!("{} {g:.1} GMAC/s", p.name()))
+        .collect();
+    let ratio = match g.as_slice() {
+        [a, b, ..] => format!("; {}/{} {:.2}", paths[0].name(), paths[1].name(), a / b),
+        _ => String::new(),
+    };
+    println!(
+        "pair-sum kernel ({rows} rows × {pairs} pairs × {lanes} lanes, 1 thread): {}{ratio}",
+        each.join(", ")
+    );
 }
 
 fn rate(r: f64) -> String {
