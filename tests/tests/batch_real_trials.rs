@@ -121,7 +121,7 @@ fn config(variant: Variant, diff: bool, hidden: u16) -> ModelConfig {
         name: *b"batch\0\0\0\0\0\0\0",
         variant,
         force_diff: diff,
-        sample_rate_mhz: 16_700,
+        sample_rate_mhz: slipguard_core::sample::PAPER_RATE_MHZ,
         input_unit: InputUnit::MilliNewton,
         input_offset: 0,
         input_full_scale: 32_768,

@@ -652,17 +652,27 @@ struct LaneLstm {
 /// Working buffers of one chunk.
 #[derive(Clone, Debug)]
 struct Scratch {
+    /// Each lane's normalised features, Q3.12 (as `Model::step` feeds the LSTM).
     feats: Vec<[i16; MAX_INPUT]>,
+    /// The LSTM input as pairs, `x[p·lanes + i]` = features 2p (low half) and 2p + 1 (high
+    /// half) of lane i, Q3.12, for the pair-sum kernel.
     x: Vec<u32>,
+    /// Σ w_ih·x per gate row and lane: int8 weights × Q3.12, an exact i32 sum (the row's
+    /// scale is applied at requantisation, `LstmRowParams`).
     acc_x: Vec<i32>,
+    /// Σ w_hh·h per gate row and lane: int8 weights × Q0.15 h, an exact i32 sum.
     acc_h: Vec<i32>,
+    /// Gate activations per row and lane, Q0.15 (σ for i, f, o; tanh for g).
     gates: Vec<i16>,
     /// The chunk's lanes that step.
     on: Vec<bool>,
     stft: StftLanes,
-    /// The chunk's band magnitudes, `bands[b·lanes + i]`.
+    /// The chunk's band magnitudes, `bands[b·lanes + i]`, Q1.15 (|X_k| / Σw, the STFT's output).
     bands: Vec<i16>,
+    /// Σ w·h of the two dense rows per lane: int8 × Q0.15 h, an exact i32 sum.
     dense: Vec<i32>,
+    /// The dense layer's two sums per lane over every LSTM's h (int8 × Q0.15), before the
+    /// row requantisation; i64 as in `decision::p_unstable`, where acc·m needs up to 63 bits.
     logits: Vec<[i64; 2]>,
 }
 

@@ -23,15 +23,13 @@
 
 use candle_core::{D, DType, Device, Tensor, Var};
 use rand::SeedableRng;
-use rand::seq::SliceRandom;
 use slipguard_core::MAX_INPUT;
 use slipguard_core::float::FloatModel;
 use slipguard_core::quantize::{feature_norm, quantize_row};
-use std::time::Instant;
 
 use crate::error::{LearnError, Result};
 use crate::train::{
-    Batch, EpochLog, Prepared, Progress, TrainConfig, TrainOutcome, make_batch, train_labels,
+    Batch, Prepared, Progress, TrainConfig, TrainOutcome, make_batch, mean_loss, train_epoch,
 };
 use slipguard_data::labels::ChannelSequence;
 
@@ -384,13 +382,7 @@ pub fn snap_to_blob_grid(model: &FloatModel) -> FloatModel {
 }
 
 fn prepare(model: &FloatModel, seqs: &[&ChannelSequence], lead: usize) -> Prepared {
-    Prepared {
-        feats: seqs
-            .iter()
-            .map(|s| blob_features(model, &s.samples))
-            .collect(),
-        labels: seqs.iter().map(|s| train_labels(s, lead)).collect(),
-    }
+    Prepared::of(seqs, lead, |x| blob_features(model, x))
 }
 
 /// Per-step p(unstable) of `model` through the QAT forward pass (what the fine-tuning sees;
@@ -453,15 +445,6 @@ pub fn qat_finetune(
         .chunks(cfg.batch.max(1))
         .map(|c| make_batch(&pval, c, nf, cfg, &dev))
         .collect::<Result<_>>()?;
-    let eval_loss = |net: &QatNet, batches: &[Batch]| -> Result<f64> {
-        let (mut s, mut n) = (0f64, 0f64);
-        for b in batches {
-            let l = net.loss(b).and_then(|t| t.to_scalar::<f32>())?;
-            s += l as f64 * b.wsum;
-            n += b.wsum;
-        }
-        Ok(if n > 0.0 { s / n } else { f64::NAN })
-    };
     // (validation loss, epoch, model, max |Δp| on the agreement recordings).
     type Pick = (f64, usize, FloatModel, f32);
     let agree = |m: &FloatModel| -> Result<f32> {
@@ -475,7 +458,7 @@ pub fn qat_finetune(
     let v0 = if val_batches.is_empty() {
         f64::INFINITY
     } else {
-        eval_loss(&net, &val_batches)?
+        mean_loss(&val_batches, |b| net.loss(b))?
     };
     let d0 = agree(&m0)?;
     // The best epoch within the bound, and the one closest to the bound.
@@ -485,42 +468,19 @@ pub fn qat_finetune(
     let mut history = Vec::new();
     let mut order: Vec<usize> = (0..train.len()).collect();
     for epoch in 1..=qat.epochs {
-        let t0 = Instant::now();
-        order.shuffle(&mut rng);
-        let (mut s, mut n) = (0f64, 0f64);
-        let batches = order.len().div_ceil(cfg.batch.max(1));
-        for (k, chunk) in order.chunks(cfg.batch.max(1)).enumerate() {
-            let b = make_batch(&ptrain, chunk, nf, cfg, &dev)?;
-            let loss = net.loss(&b)?;
-            opt.backward_step(&loss)?;
-            s += loss.to_scalar::<f32>()? as f64 * b.wsum;
-            n += b.wsum;
-            progress(Progress::Batch {
-                epoch,
-                batch: k + 1,
-                batches,
-                train_loss: s / n.max(1e-9),
-            });
-        }
-        let train_loss = s / n.max(1e-9);
-        let val_loss = if val_batches.is_empty() {
-            train_loss
-        } else {
-            eval_loss(&net, &val_batches)?
-        };
-        let log = EpochLog {
+        let log = train_epoch(
             epoch,
-            train_loss,
-            val_loss,
-            seconds: t0.elapsed().as_secs_f64(),
-        };
-        progress(Progress::Epoch(&log));
+            &mut order,
+            &mut rng,
+            &ptrain,
+            &val_batches,
+            (nf, cfg, &dev),
+            &mut opt,
+            |b| net.loss(b),
+            &mut progress,
+        )?;
+        let val_loss = log.val_loss;
         history.push(log);
-        if !train_loss.is_finite() {
-            return Err(LearnError::Training(format!(
-                "QAT diverged at epoch {epoch}"
-            )));
-        }
         let m = snap_to_blob_grid(&net.extract(init)?);
         let d = agree(&m)?;
         agreement_log.push(d);

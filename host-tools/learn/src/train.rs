@@ -137,10 +137,89 @@ pub(crate) struct Prepared {
 }
 
 fn prepare(model: &FloatModel, seqs: &[&ChannelSequence], lead: usize) -> Prepared {
-    Prepared {
-        feats: seqs.iter().map(|s| features(model, &s.samples)).collect(),
-        labels: seqs.iter().map(|s| train_labels(s, lead)).collect(),
+    Prepared::of(seqs, lead, |x| features(model, x))
+}
+
+impl Prepared {
+    /// The features (`feats` of a raw sequence) and training labels of `seqs`.
+    pub(crate) fn of(
+        seqs: &[&ChannelSequence],
+        lead: usize,
+        feats: impl Fn(&[f32]) -> Vec<Vec<f32>>,
+    ) -> Self {
+        Prepared {
+            feats: seqs.iter().map(|s| feats(&s.samples)).collect(),
+            labels: seqs.iter().map(|s| train_labels(s, lead)).collect(),
+        }
     }
+}
+
+/// Weighted mean of `loss` over `batches` (NaN without batches).
+pub(crate) fn mean_loss(
+    batches: &[Batch],
+    loss: impl Fn(&Batch) -> candle_core::Result<Tensor>,
+) -> Result<f64> {
+    let (mut s, mut n) = (0f64, 0f64);
+    for b in batches {
+        let l = loss(b).and_then(|t| t.to_scalar::<f32>())?;
+        s += l as f64 * b.wsum;
+        n += b.wsum;
+    }
+    Ok(if n > 0.0 { s / n } else { f64::NAN })
+}
+
+/// One epoch of either trainer (float or quantization-aware): shuffles `order`, takes an
+/// optimiser step per batch of `train` on `loss`, reports progress per batch and the epoch's
+/// log (training loss, and the validation loss on `val`, or the training loss without it).
+/// A non-finite training loss is an error.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn train_epoch(
+    epoch: usize,
+    order: &mut [usize],
+    rng: &mut rand_chacha::ChaCha8Rng,
+    train: &Prepared,
+    val: &[Batch],
+    (nf, cfg, dev): (usize, &TrainConfig, &Device),
+    opt: &mut impl Optimizer,
+    loss: impl Fn(&Batch) -> candle_core::Result<Tensor>,
+    progress: &mut impl FnMut(Progress<'_>),
+) -> Result<EpochLog> {
+    let t0 = Instant::now();
+    order.shuffle(rng);
+    let (mut s, mut n) = (0f64, 0f64);
+    let batches = order.len().div_ceil(cfg.batch.max(1));
+    for (k, chunk) in order.chunks(cfg.batch.max(1)).enumerate() {
+        let b = make_batch(train, chunk, nf, cfg, dev)?;
+        let l = loss(&b)?;
+        opt.backward_step(&l)?;
+        s += l.to_scalar::<f32>()? as f64 * b.wsum;
+        n += b.wsum;
+        progress(Progress::Batch {
+            epoch,
+            batch: k + 1,
+            batches,
+            train_loss: s / n.max(1e-9),
+        });
+    }
+    let train_loss = s / n.max(1e-9);
+    let val_loss = if val.is_empty() {
+        train_loss
+    } else {
+        mean_loss(val, &loss)?
+    };
+    let log = EpochLog {
+        epoch,
+        train_loss,
+        val_loss,
+        seconds: t0.elapsed().as_secs_f64(),
+    };
+    progress(Progress::Epoch(&log));
+    if !train_loss.is_finite() {
+        return Err(LearnError::Training(format!(
+            "training diverged at epoch {epoch}"
+        )));
+    }
+    Ok(log)
 }
 
 /// The candle network.
@@ -342,58 +421,26 @@ pub fn train(
         .chunks(cfg.batch.max(1))
         .map(|c| make_batch(&pval, c, nf, cfg, &dev))
         .collect::<Result<_>>()?;
-    let eval_loss = |net: &Net, batches: &[Batch]| -> Result<f64> {
-        let (mut s, mut n) = (0f64, 0f64);
-        for b in batches {
-            let l = batch_loss(net, b).and_then(|t| t.to_scalar::<f32>())?;
-            s += l as f64 * b.wsum;
-            n += b.wsum;
-        }
-        Ok(if n > 0.0 { s / n } else { f64::NAN })
-    };
     let mut best = (f64::INFINITY, 0usize, init.clone());
     if !val_batches.is_empty() {
-        best.0 = eval_loss(&net, &val_batches)?;
+        best.0 = mean_loss(&val_batches, |b| batch_loss(&net, b))?;
     }
     let mut history = Vec::new();
     let mut order: Vec<usize> = (0..train.len()).collect();
     for epoch in 1..=cfg.epochs {
-        let t0 = Instant::now();
-        order.shuffle(&mut rng);
-        let (mut s, mut n) = (0f64, 0f64);
-        let batches = order.len().div_ceil(cfg.batch.max(1));
-        for (k, chunk) in order.chunks(cfg.batch.max(1)).enumerate() {
-            let b = make_batch(&ptrain, chunk, nf, cfg, &dev)?;
-            let loss = batch_loss(&net, &b)?;
-            opt.backward_step(&loss)?;
-            s += loss.to_scalar::<f32>()? as f64 * b.wsum;
-            n += b.wsum;
-            progress(Progress::Batch {
-                epoch,
-                batch: k + 1,
-                batches,
-                train_loss: s / n.max(1e-9),
-            });
-        }
-        let train_loss = s / n.max(1e-9);
-        let val_loss = if val_batches.is_empty() {
-            train_loss
-        } else {
-            eval_loss(&net, &val_batches)?
-        };
-        let log = EpochLog {
+        let log = train_epoch(
             epoch,
-            train_loss,
-            val_loss,
-            seconds: t0.elapsed().as_secs_f64(),
-        };
-        progress(Progress::Epoch(&log));
+            &mut order,
+            &mut rng,
+            &ptrain,
+            &val_batches,
+            (nf, cfg, &dev),
+            &mut opt,
+            |b| batch_loss(&net, b),
+            &mut progress,
+        )?;
+        let val_loss = log.val_loss;
         history.push(log);
-        if !train_loss.is_finite() {
-            return Err(LearnError::Training(format!(
-                "training diverged at epoch {epoch}"
-            )));
-        }
         if val_loss < best.0 {
             best = (val_loss, epoch, extract(init, &varmap)?);
         } else if epoch - best.1 >= cfg.patience {
