@@ -43,6 +43,39 @@ pub const ACTUATOR_TAU_S: f64 = 0.08;
 pub const MAX_GRIP_N: f64 = 40.0;
 /// UART speed (docs/protocol.md), for the transmission time of a frame.
 pub const BAUD: f64 = 921_600.0;
+/// Wire time of a 16-channel flag frame (56 bytes, 10 bits each at [`BAUD`]): 0.61 ms.
+pub const FLAG_FRAME_S: f64 = 56.0 * 10.0 / BAUD;
+/// Modelled `App::infer` time of one frame with all 16 channels of the hand profile in contact
+/// (the worst case: the firmware runs the model only on the channels in contact) on the 168 MHz
+/// STM32F405: 44.1 % of a 40 Hz period in estimated Cortex-M4 cycles (`scripts/budgets.sh`, the
+/// cycle model with flash wait states), 1.85 M cycles = 11.0 ms. The firmware infers a frame as
+/// soon as its last scan is in and sends it right after (`firmware/src/main.rs`).
+pub const INFERENCE_S: f64 = 0.011;
+
+/// When a frame's flags reach the controller, counted from the frame's last sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Latency {
+    /// The firmware's deadline, the bound docs/protocol.md guarantees: one period + the frame's
+    /// wire time. The closed-loop training chains of `models/hand-force-40hz` ran with it.
+    Deadline,
+    /// As the firmware runs: inference of this many seconds (at most one period: a frame that
+    /// would take longer is late and goes out at the deadline) + the frame's wire time.
+    Inference(f64),
+}
+
+impl Latency {
+    /// The firmware as modelled: [`INFERENCE_S`].
+    pub const MODELLED: Latency = Latency::Inference(INFERENCE_S);
+
+    /// Seconds from a frame's last sample to its arrival at the controller, at `period_s`.
+    pub fn delay_s(self, period_s: f64) -> f64 {
+        let compute = match self {
+            Latency::Deadline => period_s,
+            Latency::Inference(s) => s.clamp(0.0, period_s),
+        };
+        compute + FLAG_FRAME_S
+    }
+}
 
 /// The paper's four test situations.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -264,6 +297,8 @@ pub struct ControllerConfig {
     /// controller waits for its last step to reach the fingers (the actuator's time constant is
     /// [`ACTUATOR_TAU_S`]) before it steps again (0 = a step on every unstable frame).
     pub hold_off_s: f64,
+    /// When the flags of a frame arrive.
+    pub latency: Latency,
 }
 
 /// One sample of the trace (every 10 ms).
@@ -476,7 +511,7 @@ pub fn run_trial(
                     lost: contact.t_loss.is_some(),
                 });
             }
-            let deliver = t + period_s + 56.0 * 10.0 / BAUD;
+            let deliver = t + ctl.latency.delay_s(period_s);
             match source {
                 FlagSource::Off => {}
                 FlagSource::Oracle { .. } | FlagSource::Teacher { .. } => {
@@ -740,6 +775,8 @@ pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<
             decision: None,
             settle_s: 0.0,
             hold_off_s: 0.0,
+            // The latency the published training chains were recorded with.
+            latency: Latency::Deadline,
         };
         // Drawn only when asked for, so that data without false alarms or a policy stays as it
         // was.

@@ -106,6 +106,65 @@ fn train_refuses_a_closed_loop_policy_it_cannot_use() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[test]
+fn train_picks_the_decision_on_an_inner_cross_validation() {
+    // Without --cv the inner 2-fold CV runs over all 23 real trials with contact: two inner
+    // models, each run over the trials it did not see, and the decision picked on those runs.
+    let dir = tmp_dir("inner-cv");
+    let out = slipguard()
+        .args([
+            "train",
+            "--variant",
+            "lstm",
+            "--hidden",
+            "4",
+            "--epochs",
+            "1",
+            "--tune-decision",
+            "--tune-decision-cv",
+            "2",
+            "--name",
+            "tiny",
+        ])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    for needle in [
+        "train inner 0:",
+        "train inner 1:",
+        "decision tuned on 23 2-fold inner CV held-out trials",
+    ] {
+        assert!(err.contains(needle), "expected `{needle}` in: {err}");
+    }
+    assert!(dir.join("tiny.bin").is_file());
+    std::fs::remove_dir_all(&dir).unwrap();
+    // One inner fold, or the option without the decision sweep it feeds: refused up front.
+    refused(
+        &[
+            "train",
+            "--tune-decision",
+            "--tune-decision-cv",
+            "1",
+            "--out",
+            "/nonexistent/x",
+        ],
+        &["--tune-decision-cv 1", "2 to 20"],
+    );
+    refused(
+        &[
+            "train",
+            "--tune-decision-cv",
+            "3",
+            "--out",
+            "/nonexistent/x",
+        ],
+        &["--tune-decision"],
+    );
+}
+
 /// Runs `slipguard ARGS`; expects a failure whose stderr names every `needle`, on few lines.
 fn refused(args: &[&str], needles: &[&str]) -> String {
     let out = slipguard().args(args).output().unwrap();

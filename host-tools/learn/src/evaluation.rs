@@ -294,7 +294,7 @@ pub fn probabilities(
 
 /// Cross-validation folds by trial: failure trials and success trials (sorted by id) are dealt
 /// round-robin into `k` folds, so every fold has failures. Returns trial ids per fold.
-pub fn cv_folds(seqs: &[Sequence], k: usize) -> Vec<Vec<String>> {
+pub fn cv_folds<'a>(seqs: impl IntoIterator<Item = &'a Sequence>, k: usize) -> Vec<Vec<String>> {
     let mut fail: Vec<String> = Vec::new();
     let mut succ: Vec<String> = Vec::new();
     for s in seqs {

@@ -8,8 +8,8 @@ use anyhow::Context;
 use clap::Parser;
 use plotters::prelude::*;
 use slipguard::closed_loop::{
-    ControllerConfig, FlagSource, Outcome, Scenario, Situation, min_grip_needed, run_trial,
-    summarise,
+    ControllerConfig, FlagSource, INFERENCE_S, Latency, Outcome, Scenario, Situation,
+    min_grip_needed, run_trial, summarise,
 };
 use slipguard::replay::{default_models, shipped_blobs};
 
@@ -68,6 +68,20 @@ pub struct Args {
     /// unit not the hand profile's) after a warning, instead of stopping.
     #[arg(long)]
     pub allow_bad_model: bool,
+    /// When a frame's flags reach the controller: `firmware` = as the firmware runs (modelled
+    /// inference of a 16-channel frame, 11.0 ms, + 0.61 ms on the wire); `deadline` = the bound
+    /// the protocol guarantees (one period + 0.61 ms).
+    #[arg(long, value_enum, default_value_t = LatencyArg::Firmware)]
+    pub latency: LatencyArg,
+}
+
+/// `--latency`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LatencyArg {
+    /// Modelled inference time + wire time.
+    Firmware,
+    /// One period + wire time.
+    Deadline,
 }
 
 struct Source {
@@ -178,12 +192,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         decision,
         settle_s: a.settle_ms as f64 / 1000.0,
         hold_off_s: a.hold_off_ms as f64 / 1000.0,
+        latency: match a.latency {
+            LatencyArg::Firmware => Latency::MODELLED,
+            LatencyArg::Deadline => Latency::Deadline,
+        },
+    };
+    let latency = match a.latency {
+        LatencyArg::Firmware => format!(
+            "latency {:.1} ms (modelled inference of a 16-channel frame) + 0.61 ms on the wire \
+             after a frame's last sample",
+            1000.0 * INFERENCE_S
+        ),
+        LatencyArg::Deadline => "latency one frame + 0.61 ms (the deadline bound)".to_string(),
     };
     let mut md = String::new();
     let _ = writeln!(
         md,
         "Closed loop: {} trials per situation, seed {}, grip step {:.0} % of the initial grip, \
-         frame rate {} Hz (each model's own), latency one frame + 0.61 ms.\n",
+         frame rate {} Hz (each model's own), {latency}.\n",
         a.trials,
         a.seed,
         100.0 * a.step,

@@ -155,6 +155,13 @@ pub struct Args {
     /// with a further penalty on a false-alarm share over this bound.
     #[arg(long, default_value_t = 0.125, value_parser = check::unit)]
     pub max_false_alarm_rate: f64,
+    /// With --tune-decision on real trials: pick the decision on the held-out trials of an inner
+    /// cross-validation over the training trials with this many folds (each inner fold trains its
+    /// own model with the same recipe) instead of on the few validation trials (0 = off, else
+    /// 2…20). With --cv the inner folds run inside each outer fold's training trials, so the
+    /// outer held-out trials stay unseen; without it this is the pooled CV over all real trials.
+    #[arg(long, default_value_t = 0, requires = "tune_decision", value_parser = check::usize_in!(0..=20))]
+    pub tune_decision_cv: usize,
     /// Train on sequences from the grasp start instead of from each channel's contact onset
     /// (the firmware's model state starts at the onset; this is for comparison only).
     #[arg(long)]
@@ -241,6 +248,31 @@ struct QatRun {
     best_epoch: usize,
     seconds_per_epoch: f64,
     history: Vec<EpochLog>,
+}
+
+/// What every fold's training draws on.
+struct FoldData<'d> {
+    real: &'d [Sequence],
+    sim_mix: &'d [Sequence],
+    cl_mix: &'d [Sequence],
+    /// The pre-trained model all folds start from, if any.
+    pre: Option<&'d FloatModel>,
+    config: slipguard_core::blob::ModelConfig,
+    /// Whole recordings for the QAT agreement check.
+    agreement: &'d [Trial],
+    real_trials: &'d [Trial],
+}
+
+/// One fold's trained model and what it was trained on.
+struct FoldFit<'d> {
+    model: FloatModel,
+    best_epoch: usize,
+    spe: f64,
+    history: Vec<EpochLog>,
+    qat_note: Option<String>,
+    tr: Vec<&'d ChannelSequence>,
+    val: Vec<&'d ChannelSequence>,
+    timing: Vec<String>,
 }
 
 struct Run<'a> {
@@ -387,21 +419,154 @@ impl Run<'_> {
         })
     }
 
+    /// Trains one model on `train_real` (split by trial with `split_seed` for early stopping)
+    /// plus the simulated mixes, from the pre-trained model, then QAT if asked for; the QAT
+    /// agreement recordings leave out the trials in `excluded`.
+    fn fit_fold<'d>(
+        &self,
+        d: &FoldData<'d>,
+        train_real: &[&'d Sequence],
+        excluded: &[String],
+        split_seed: u64,
+        what: &str,
+    ) -> anyhow::Result<FoldFit<'d>> {
+        let a = self.a;
+        let mut timing = Vec::new();
+        let tr_refs: Vec<&ChannelSequence> = train_real.iter().map(|s| &s.cs).collect();
+        let (mut tr, val) = split_by_trial(&tr_refs, a.val_share, split_seed);
+        let (mut tr_mix, val_mix) = if a.sensor == Sensor::Suction || d.real.is_empty() {
+            split_by_trial(&refs(d.sim_mix), a.val_share, a.seed)
+        } else {
+            (refs(d.sim_mix), Vec::new())
+        };
+        tr.append(&mut tr_mix);
+        let (mut tr_cl, val_cl) = split_by_trial(&refs(d.cl_mix), a.val_share, a.seed);
+        tr.append(&mut tr_cl);
+        let val: Vec<&ChannelSequence> = val.into_iter().chain(val_mix).chain(val_cl).collect();
+        let init = match d.pre {
+            Some(m) => m.clone(),
+            None => init_model(d.config, a.seed, &tr),
+        };
+        let (mut model, mut best_epoch, spe, mut history) = if a.epochs == 0 {
+            (init.clone(), 0, 0.0, Vec::new())
+        } else {
+            self.fit(what, &init, &tr, &val, &self.tc)?
+        };
+        timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
+        let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+        let mut qat_note = None;
+        if a.qat_epochs > 0 {
+            let agreement: Vec<Vec<f32>> = d
+                .agreement
+                .iter()
+                .filter(|t| !excluded.contains(&t.id))
+                .flat_map(|t| {
+                    t.samples
+                        .iter()
+                        .enumerate()
+                        .filter(|(c, s)| t.contact.get(*c) == Some(&true) && !s.is_empty())
+                        .map(|(_, s)| s.clone())
+                })
+                .collect();
+            let q = self.qat(what, &model, &tr, &val, &calib, agreement)?;
+            timing.push(format!("{what} QAT {:.2} s/epoch", q.seconds_per_epoch));
+            if q.best_epoch > 0 {
+                best_epoch = history.len() + q.best_epoch;
+            }
+            let n_float = history.len();
+            history.extend(q.history.iter().map(|l| EpochLog {
+                epoch: n_float + l.epoch,
+                ..*l
+            }));
+            model = q.model;
+            qat_note = Some(q.note);
+        }
+        Ok(FoldFit {
+            model,
+            best_epoch,
+            spe,
+            history,
+            qat_note,
+            tr,
+            val,
+            timing,
+        })
+    }
+
+    /// `--tune-decision-cv`: an inner cross-validation over `train_real` (the trials in
+    /// `excluded` are already out), each inner fold's quantized model run over its inner
+    /// held-out trials; returns those runs, pooled, for the decision sweep.
+    fn inner_cv_runs(
+        &self,
+        d: &FoldData<'_>,
+        train_real: &[&Sequence],
+        excluded: &[String],
+        k: usize,
+        what: &str,
+    ) -> anyhow::Result<Vec<product::WindowedRun>> {
+        let folds = cv_folds(train_real.iter().copied(), self.a.tune_decision_cv);
+        let mut runs = Vec::new();
+        for (j, held) in folds.iter().enumerate().filter(|(_, h)| !h.is_empty()) {
+            let inner_train: Vec<&Sequence> = train_real
+                .iter()
+                .copied()
+                .filter(|s| !held.contains(&s.cs.trial_id))
+                .collect();
+            let out: Vec<String> = excluded.iter().chain(held).cloned().collect();
+            // Seeds of the inner splits apart from the outer folds' (seed + k).
+            let split_seed = self.a.seed + 1000 * (k as u64 + 1) + j as u64;
+            let f = self.fit_fold(
+                d,
+                &inner_train,
+                &out,
+                split_seed,
+                &format!("{what} inner {j}"),
+            )?;
+            let calib: Vec<&[f32]> = f.tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+            let blob = quantize_model(&f.model, &calib)?;
+            let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
+            let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
+                .map_err(|e| anyhow::anyhow!("the quantized model does not parse: {e}"))?;
+            let trials: Vec<&Trial> = d
+                .real_trials
+                .iter()
+                .filter(|t| held.contains(&t.id))
+                .collect();
+            runs.extend(product::windowed_runs(
+                &m,
+                &trials,
+                &LabelConfig::default(),
+            )?);
+        }
+        Ok(runs)
+    }
+
     fn decision(
         &self,
         model: &mut FloatModel,
         val: &[&Sequence],
         val_trials: &[&Trial],
         calib: &[&[f32]],
+        inner: Option<&[product::WindowedRun]>,
     ) -> anyhow::Result<()> {
-        let d = if self.a.tune_decision && !val_trials.is_empty() {
+        let d = if self.a.tune_decision && (inner.is_some() || !val_trials.is_empty()) {
             // The product's decision: the hand flag in the armed window of the validation
-            // trials, with the quantized model the firmware runs.
+            // trials (or of the inner cross-validation's held-out trials), with the quantized
+            // model the firmware runs.
             let blob = quantize_model(model, calib)?;
             let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
             let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
                 .map_err(|e| anyhow::anyhow!("the quantized model does not parse: {e}"))?;
-            let runs = product::windowed_runs(&m, val_trials, &LabelConfig::default())?;
+            let (runs, on) = match inner {
+                Some(r) => (
+                    r.to_vec(),
+                    format!("{}-fold inner CV held-out", self.a.tune_decision_cv),
+                ),
+                None => (
+                    product::windowed_runs(&m, val_trials, &LabelConfig::default())?,
+                    "validation".to_string(),
+                ),
+            };
             let base = slipguard_core::decision::HandConfig::of(m.config());
             let curve = product::operating_curve(
                 &runs,
@@ -416,7 +581,7 @@ impl Run<'_> {
             let pick = product::pick_decision(&curve, self.a.max_false_alarm_rate)
                 .ok_or_else(|| anyhow::anyhow!("no validation trial with contact"))?;
             eprintln!(
-                "  decision tuned on {} validation trials (hand level, armed window): threshold {:.2}, raise {}: {}/{} failures ≥ 300 ms ahead, {}/{} successes with a false alarm",
+                "  decision tuned on {} {on} trials (hand level, armed window): threshold {:.2}, raise {}: {}/{} failures ≥ 300 ms ahead, {}/{} successes with a false alarm",
                 runs.len(),
                 pick.threshold,
                 pick.raise_after,
@@ -505,6 +670,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         a.cv != 1,
         "--cv 1: cross-validation needs 0 (off) or 2 to the number of real trials folds"
+    );
+    anyhow::ensure!(
+        a.tune_decision_cv != 1,
+        "--tune-decision-cv 1: the inner cross-validation needs 0 (off) or 2 to 20 folds"
     );
     let tc = TrainConfig {
         lr: a.lr,
@@ -710,64 +879,37 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let mut armed_hand: Vec<slipguard_data::armed::ArmedGrasp> = Vec::new();
         let mut pooled: (Vec<&Sequence>, Vec<Vec<_>>, Vec<Vec<_>>) =
             (Vec::new(), Vec::new(), Vec::new());
+        let data = FoldData {
+            real: &real,
+            sim_mix: &sim_mix,
+            cl_mix: &cl_mix,
+            pre: pre.as_ref(),
+            config,
+            agreement: &agreement_trials,
+            real_trials: &real_trials,
+        };
         for (k, held) in folds.iter().enumerate() {
             let train_real: Vec<&Sequence> = real
                 .iter()
                 .filter(|s| !held.contains(&s.cs.trial_id))
                 .collect();
-            let tr_refs: Vec<&ChannelSequence> = train_real.iter().map(|s| &s.cs).collect();
-            let (mut tr, val) = split_by_trial(&tr_refs, a.val_share, a.seed + k as u64);
-            let (mut tr_mix, val_mix) = if a.sensor == Sensor::Suction || real.is_empty() {
-                split_by_trial(&refs(&sim_mix), a.val_share, a.seed)
-            } else {
-                (refs(&sim_mix), Vec::new())
-            };
-            tr.append(&mut tr_mix);
-            let (mut tr_cl, val_cl) = split_by_trial(&refs(&cl_mix), a.val_share, a.seed);
-            tr.append(&mut tr_cl);
-            let val: Vec<&ChannelSequence> = val.into_iter().chain(val_mix).chain(val_cl).collect();
-            let init = match &pre {
-                Some(m) => m.clone(),
-                None => init_model(config, a.seed, &tr),
-            };
             let what = if a.cv > 0 {
                 format!("fold {k}")
             } else {
                 "train".to_string()
             };
-            let (mut model, mut best_epoch, spe, mut history) = if a.epochs == 0 {
-                (init.clone(), 0, 0.0, Vec::new())
-            } else {
-                run.fit(&what, &init, &tr, &val, &run.tc)?
-            };
-            timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
+            let FoldFit {
+                mut model,
+                best_epoch,
+                spe,
+                history,
+                qat_note,
+                tr,
+                val,
+                timing: t,
+            } = run.fit_fold(&data, &train_real, held, a.seed + k as u64, &what)?;
+            timing.extend(t);
             let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
-            let mut qat_note = None;
-            if a.qat_epochs > 0 {
-                let agreement: Vec<Vec<f32>> = agreement_trials
-                    .iter()
-                    .filter(|t| !held.contains(&t.id))
-                    .flat_map(|t| {
-                        t.samples
-                            .iter()
-                            .enumerate()
-                            .filter(|(c, s)| t.contact.get(*c) == Some(&true) && !s.is_empty())
-                            .map(|(_, s)| s.clone())
-                    })
-                    .collect();
-                let q = run.qat(&what, &model, &tr, &val, &calib, agreement)?;
-                timing.push(format!("{what} QAT {:.2} s/epoch", q.seconds_per_epoch));
-                if q.best_epoch > 0 {
-                    best_epoch = history.len() + q.best_epoch;
-                }
-                let n_float = history.len();
-                history.extend(q.history.iter().map(|l| EpochLog {
-                    epoch: n_float + l.epoch,
-                    ..*l
-                }));
-                model = q.model;
-                qat_note = Some(q.note);
-            }
             let val_seqs: Vec<&Sequence> = real
                 .iter()
                 .chain(&sim_mix)
@@ -779,7 +921,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .iter()
                 .filter(|t| val_ids.contains(t.id.as_str()))
                 .collect();
-            run.decision(&mut model, &val_seqs, &val_trials, &calib)?;
+            let inner = if a.tune_decision && a.tune_decision_cv > 0 && !real_trials.is_empty() {
+                Some(run.inner_cv_runs(&data, &train_real, held, k, &what)?)
+            } else {
+                None
+            };
+            run.decision(&mut model, &val_seqs, &val_trials, &calib, inner.as_deref())?;
             let mut extra = std::collections::BTreeMap::new();
             extra.insert("train_command".into(), run.command.clone());
             extra.insert("best_epoch".into(), best_epoch.to_string());
