@@ -62,8 +62,13 @@ model_line="$(grep -m1 'model ' "$work/qemu.txt" || true)"
 echo
 sed -n '/^== Cortex-M4 cycle estimate per part/,/^cycles: /p' "$work/bench.txt"
 
+# The closed-loop simulation's modelled inference time (host-tools/src/closed_loop.rs), checked
+# against this frame's estimate below.
+inference_s="$(sed -n 's/^pub const INFERENCE_S: f64 = \([0-9.]*\);.*/\1/p' "$root/host-tools/src/closed_loop.rs")"
+
 awk -v flash="$flash" -v model="$model" -v ram="$ram" -v model_ram="$model_ram" -v insns="$insns" \
-  -v cycles="$span_cycles" -v stall="$span_stall" -v frames="$frames" -v strict="$strict" -v ml="$model_line" '
+  -v cycles="$span_cycles" -v stall="$span_stall" -v frames="$frames" -v strict="$strict" -v ml="$model_line" \
+  -v inference_s="${inference_s:-0}" '
 function kib(b) { return sprintf("%.1f KiB", b / 1024) }
 BEGIN {
   ok = 1
@@ -81,5 +86,8 @@ BEGIN {
   printf "CPU share at 168 MHz from the estimated cycles: 16.7 Hz %.1f %%, 40 Hz %.1f %% (at 1 insn/cycle: %.1f %%, %.1f %%)\n", s16, s40, insns * 16.7 / 168e6 * 100, insns * 40 / 168e6 * 100
   t = s40 <= 44; ok = ok && t
   printf "target: 16 channels at 40 Hz within 44 %% of the CPU (estimated cycles): %s\n", t ? "ok" : "OVER"
+  ms = c / 168e6 * 1000
+  same = inference_s > 0 && ms / (1000 * inference_s) > 0.95 && ms / (1000 * inference_s) < 1.05
+  printf "16-channel frame at 168 MHz: %.1f ms; the closed loop models %.1f ms (closed_loop::INFERENCE_S): %s\n", ms, 1000 * inference_s, same ? "ok (within 5 %)" : "differs: update INFERENCE_S"
   if (strict && !ok) exit 1
 }'
