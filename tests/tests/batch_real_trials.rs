@@ -11,9 +11,8 @@
 use std::path::Path;
 
 use slipguard_core::batch::BatchModel;
-use slipguard_core::blob::{AlignedBlob, InputUnit, ModelConfig, Variant};
+use slipguard_core::blob::{AlignedBlob, ModelConfig, Variant};
 use slipguard_core::decision::{ContactConfig, ContactEdge};
-use slipguard_core::features::stft::StftConfig;
 use slipguard_core::float::FloatModel;
 use slipguard_core::model::{ChannelState, GatedOutput, Model, StepOutput};
 use slipguard_core::quantize::quantize;
@@ -114,35 +113,15 @@ fn shipped_models_batched_equal_single_on_the_real_trials() {
     }
 }
 
-/// A force model's header at the trials' rate (16.7 Hz, 0…32 768 mN).
+/// A force model's header at the trials' rate (16.7 Hz, 0…32 768 mN): the trainer's.
 fn config(variant: Variant, diff: bool, hidden: u16) -> ModelConfig {
-    ModelConfig {
-        model_id: 0,
-        name: *b"batch\0\0\0\0\0\0\0",
+    slipguard_learn::evaluation::force_config(
         variant,
-        force_diff: diff,
-        sample_rate_mhz: slipguard_core::sample::PAPER_RATE_MHZ,
-        input_unit: InputUnit::MilliNewton,
-        input_offset: 0,
-        input_full_scale: 32_768,
-        stft: if variant.uses_bands() {
-            StftConfig::PAPER
-        } else {
-            StftConfig::NONE
-        },
-        hidden: [
-            hidden,
-            if variant == Variant::DualLstm {
-                hidden
-            } else {
-                0
-            },
-        ],
-        cell_frac_bits: [0, 0],
-        threshold_q15: 16_384,
-        raise_after: 1,
-        clear_after: 1,
-    }
+        diff,
+        hidden,
+        "batch",
+        slipguard_core::sample::PAPER_RATE_MHZ,
+    )
 }
 
 #[test]

@@ -153,6 +153,21 @@ pub fn quantize_model(model: &FloatModel, calib: &[&[f32]]) -> Result<Vec<u8>> {
     Ok(quantize(model, calib, None)?.0)
 }
 
+/// Quantizes `model` as [`quantize_model`] does and hands the bit-exact core model of that blob
+/// (what the firmware runs) to `f`.
+pub fn with_quantized_model<R>(
+    model: &FloatModel,
+    calib: &[&[f32]],
+    f: impl FnOnce(&Model<'_>) -> R,
+) -> Result<R> {
+    let blob = quantize_model(model, calib)?;
+    let aligned = AlignedBlob::new(&blob);
+    let m = Model::from_bytes(aligned.as_bytes()).map_err(|e| {
+        crate::error::LearnError::Training(format!("the quantized model does not parse: {e}"))
+    })?;
+    Ok(f(&m))
+}
+
 /// Per-step p(unstable) in Q0.15 of the float model (fresh state per sequence).
 pub fn float_p_q15(model: &FloatModel, samples: &[f32]) -> Vec<i16> {
     let mut st = model.new_channel();

@@ -15,6 +15,7 @@ use slipguard_learn::checkpoint::{self, Checkpoint};
 use slipguard_learn::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
     sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
+    with_quantized_model,
 };
 use slipguard_learn::product::{self, OnsetRule};
 use slipguard_learn::qat::{QatConfig, blob_agreement, qat_finetune};
@@ -523,20 +524,14 @@ impl Run<'_> {
                 &format!("{what} inner {j}"),
             )?;
             let calib: Vec<&[f32]> = f.tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
-            let blob = quantize_model(&f.model, &calib)?;
-            let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
-            let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
-                .map_err(|e| anyhow::anyhow!("the quantized model does not parse: {e}"))?;
             let trials: Vec<&Trial> = d
                 .real_trials
                 .iter()
                 .filter(|t| held.contains(&t.id))
                 .collect();
-            runs.extend(product::windowed_runs(
-                &m,
-                &trials,
-                &LabelConfig::default(),
-            )?);
+            runs.extend(with_quantized_model(&f.model, &calib, |m| {
+                product::windowed_runs(m, &trials, &LabelConfig::default())
+            })??);
         }
         Ok(runs)
     }
@@ -553,21 +548,17 @@ impl Run<'_> {
             // The product's decision: the hand flag in the armed window of the validation
             // trials (or of the inner cross-validation's held-out trials), with the quantized
             // model the firmware runs.
-            let blob = quantize_model(model, calib)?;
-            let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
-            let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
-                .map_err(|e| anyhow::anyhow!("the quantized model does not parse: {e}"))?;
-            let (runs, on) = match inner {
-                Some(r) => (
-                    r.to_vec(),
-                    format!("{}-fold inner CV held-out", self.a.tune_decision_cv),
-                ),
-                None => (
-                    product::windowed_runs(&m, val_trials, &LabelConfig::default())?,
-                    "validation".to_string(),
-                ),
+            let (runs, base) = with_quantized_model(model, calib, |m| {
+                let runs = match inner {
+                    Some(r) => r.to_vec(),
+                    None => product::windowed_runs(m, val_trials, &LabelConfig::default())?,
+                };
+                anyhow::Ok((runs, slipguard_core::decision::HandConfig::of(m.config())))
+            })??;
+            let on = match inner {
+                Some(_) => format!("{}-fold inner CV held-out", self.a.tune_decision_cv),
+                None => "validation".to_string(),
             };
-            let base = slipguard_core::decision::HandConfig::of(m.config());
             let curve = product::operating_curve(
                 &runs,
                 &base,
@@ -972,18 +963,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 pooled.2.extend(p.iter().map(|q| decide(plain, q)));
                 // The product's figures: the fold's quantized model over its held-out trials,
                 // hand level, armed window.
-                let blob = quantize_model(&ck.model, &calib)?;
-                let aligned = slipguard_core::blob::AlignedBlob::new(&blob);
-                let qm = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
-                    .map_err(|e| anyhow::anyhow!("the quantized model does not parse: {e}"))?;
                 let held_trials: Vec<&Trial> = real_trials
                     .iter()
                     .filter(|t| held.contains(&t.id))
                     .collect();
-                let hand = slipguard_core::decision::HandConfig::of(qm.config());
-                for w in product::windowed_runs(&qm, &held_trials, &LabelConfig::default())? {
-                    armed_hand.push(w.grasp_with(&hand));
-                }
+                let grasps = with_quantized_model(&ck.model, &calib, |qm| {
+                    let hand = slipguard_core::decision::HandConfig::of(qm.config());
+                    product::windowed_runs(qm, &held_trials, &LabelConfig::default())
+                        .map(|runs| runs.iter().map(|w| w.grasp_with(&hand)).collect::<Vec<_>>())
+                })??;
+                armed_hand.extend(grasps);
                 pooled.0.extend(test);
                 pooled.1.extend(preds);
             } else {
