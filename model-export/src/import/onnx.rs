@@ -403,7 +403,12 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
         (inputs, outputs) = (wc.dims[0], wc.dims[1]);
         w = transpose(&wc.data, inputs, outputs);
         // The Add that takes the MatMul's output and a constant.
-        let out = &dn.output[0];
+        let Some(out) = dn.output.first() else {
+            return Err(ExportError::missing(
+                node_label(dn),
+                "the MatMul has no output, so its bias Add cannot be found",
+            ));
+        };
         let add = graph
             .node
             .iter()
@@ -865,6 +870,21 @@ mod tests {
         let imp = import_model(&plain(3, 2)).expect("import");
         assert_eq!((imp.lstms[0].lstm.input, imp.lstms[0].lstm.hidden), (3, 2));
         assert_eq!(imp.dense.inputs, 2);
+    }
+
+    #[test]
+    fn a_matmul_without_an_output_is_an_error_not_a_panic() {
+        // Found by the import_onnx fuzz target: the bias lookup read the MatMul's first output.
+        let mut m = plain(3, 2);
+        let g = m.graph.as_mut().expect("graph");
+        let mm = g
+            .node
+            .iter_mut()
+            .find(|n| n.op_type == "MatMul")
+            .expect("MatMul");
+        mm.output.clear();
+        let e = import_model(&m).expect_err("refused");
+        assert!(e.to_string().contains("the MatMul has no output"), "{e}");
     }
 
     #[test]
