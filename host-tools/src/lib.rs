@@ -1,9 +1,10 @@
 //! The `slipguard` command line's library half: the firmware's exact path on recorded
 //! trials ([`replay`]), the flag-stream monitor ([`monitor`]), the simulated closed loop
-//! ([`closed_loop`]) and the plots ([`plot`]). Data, simulation and learning live in
+//! ([`closed_loop`]), the plots ([`plot`]) and the C header's generator ([`c_header`]). Data, simulation and learning live in
 //! `slipguard-data`, `slipguard-sim` and `slipguard-learn`; the binary adds `anyhow` at
 //! its edge.
 
+pub mod c_header;
 pub mod closed_loop;
 pub mod monitor;
 pub mod plot;

@@ -39,53 +39,602 @@ pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_PAYLOAD) + 1;
 /// p(unstable) value that means "not predicted" (faulted channel, no model, not running).
 pub const P_NONE: u16 = 0xFFFF;
 
-/// Message type codes (byte 1 of the payload).
-pub mod msg_type {
+/// Declares a module of named `u8` codes and `ALL`, the table of every code with its doc text,
+/// from which the C header (`host-tools/c/slipguard_protocol.h`) is generated.
+macro_rules! codes {
+    ($(#[doc = $mdoc:literal])* pub mod $module:ident {
+        $( $(#[doc = $doc:literal])* $name:ident = $value:expr; )*
+    }) => {
+        $(#[doc = $mdoc])*
+        pub mod $module {
+            $( $(#[doc = $doc])* pub const $name: u8 = $value; )*
+            /// Every code of this module, in declaration order.
+            pub const ALL: &[super::Code] = &[$(super::Code {
+                name: stringify!($name),
+                value: $name,
+                doc: concat!($($doc),*),
+            }),*];
+        }
+    };
+}
+
+/// One named code of a [`codes!`] table (status bits, upload codes, fault codes …).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Code {
+    /// The constant's name.
+    pub name: &'static str,
+    /// Its value on the wire.
+    pub value: u8,
+    /// Its doc text.
+    pub doc: &'static str,
+}
+
+/// Message type (byte 1 of the payload). A reply's type is its command's type | [`msg_type::REPLY`].
+/// With [`MsgType::body`] and [`MsgType::reply_body`] this is the protocol's one definition of
+/// the wire layout: the body lengths the decoder checks, the C header and the layout tables of
+/// `docs/protocol.md` come from it (`host-tools/tests/c_header.rs` fails when the checked-in
+/// header or the docs differ from what it generates).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum MsgType {
     /// Device → controller: one frame of flags.
-    pub const FLAGS: u8 = 0x01;
+    Flags = 0x01,
     /// Device → controller: a system fault (bad model blob, rate mismatch…); no flags follow.
-    pub const FAULT: u8 = 0x02;
+    Fault = 0x02,
     /// Device → controller: a received frame was rejected (bad CRC, unknown type…).
-    pub const ERROR: u8 = 0x03;
+    Error = 0x03,
     /// Device → controller: one frame of model input per channel (sample stream).
-    pub const SAMPLES: u8 = 0x04;
+    Samples = 0x04,
     /// Controller → device: ping.
-    pub const PING: u8 = 0x10;
+    Ping = 0x10,
     /// Controller → device: grasp start (reset channel states, tare, start flagging).
-    pub const GRASP_START: u8 = 0x11;
+    GraspStart = 0x11,
     /// Controller → device: release (stop flagging until the next grasp start).
-    pub const RELEASE: u8 = 0x12;
+    Release = 0x12,
     /// Controller → device: set threshold and hysteresis.
-    pub const SET_THRESHOLD: u8 = 0x13;
+    SetThreshold = 0x13,
     /// Controller → device: info request.
-    pub const INFO: u8 = 0x14;
+    Info = 0x14,
     /// Controller → device: the lift starts (a phase mark only).
-    pub const LIFT: u8 = 0x15;
+    Lift = 0x15,
     /// Controller → device: choose flags, flags + samples or samples.
-    pub const STREAM_MODE: u8 = 0x16;
+    StreamMode = 0x16,
     /// Controller → device: start a model upload (size, whole-blob CRC).
-    pub const UPLOAD_BEGIN: u8 = 0x17;
+    UploadBegin = 0x17,
     /// Controller → device: one chunk of the blob being uploaded.
-    pub const UPLOAD_CHUNK: u8 = 0x18;
+    UploadChunk = 0x18,
     /// Controller → device: check the uploaded blob and make it the active model.
-    pub const UPLOAD_COMMIT: u8 = 0x19;
+    UploadCommit = 0x19,
+}
+
+/// A field's type on the wire (little-endian).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WireType {
+    /// One byte.
+    U8,
+    /// Unsigned 16-bit.
+    U16,
+    /// Unsigned 32-bit.
+    U32,
+    /// Signed 32-bit, two's complement.
+    I32,
+    /// That many bytes, copied as they are.
+    Bytes(usize),
+}
+
+impl WireType {
+    /// Bytes on the wire.
+    pub const fn size(self) -> usize {
+        match self {
+            Self::U8 => 1,
+            Self::U16 => 2,
+            Self::U32 | Self::I32 => 4,
+            Self::Bytes(n) => n,
+        }
+    }
+}
+
+/// One field of a message body.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Field {
+    /// Its name (the Rust field's, and the C struct member's where there is one).
+    pub name: &'static str,
+    /// Its wire type.
+    pub ty: WireType,
+    /// What it holds (the "meaning" column of `docs/protocol.md`).
+    pub doc: &'static str,
+}
+
+const fn field(name: &'static str, ty: WireType, doc: &'static str) -> Field {
+    Field { name, ty, doc }
+}
+
+/// What follows a body's fixed fields.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Tail {
+    /// Nothing: the body has a fixed length.
+    None,
+    /// One value per channel, N = the body's `channels` field (1..=[`MAX_CHANNELS`]).
+    PerChannel(Field),
+    /// 1..=[`MAX_CHUNK`] data bytes, then the chunk's CRC-32 (u32).
+    ChunkData,
+}
+
+/// The layout of a message body (after the 4-byte header, before the CRC).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Body {
+    /// The fixed fields, in wire order.
+    pub fields: &'static [Field],
+    /// What follows them.
+    pub tail: Tail,
+}
+
+impl Body {
+    /// Bytes of the fixed fields.
+    pub const fn fixed_len(&self) -> usize {
+        let mut n = 0;
+        let mut i = 0;
+        while i < self.fields.len() {
+            n += self.fields[i].ty.size();
+            i += 1;
+        }
+        n
+    }
+
+    /// Body length with `n` per-channel values or `n` chunk data bytes (ignored for a fixed body).
+    pub const fn len(&self, n: usize) -> usize {
+        match self.tail {
+            Tail::None => self.fixed_len(),
+            Tail::PerChannel(f) => self.fixed_len() + n * f.ty.size(),
+            Tail::ChunkData => self.fixed_len() + n + 4,
+        }
+    }
+
+    /// The shortest and longest body length the decoder accepts before reading any field: a
+    /// per-channel body needs its fixed fields, and its exact length is checked once N is read
+    /// (so that N out of range is reported as a bad value, not a bad length).
+    pub const fn len_range(&self) -> (usize, usize) {
+        match self.tail {
+            Tail::None => (self.fixed_len(), self.fixed_len()),
+            Tail::PerChannel(_) => (self.len(0), usize::MAX),
+            Tail::ChunkData => (self.len(1), self.len(MAX_CHUNK)),
+        }
+    }
+
+    /// Byte offset of the field `name` in the body, if it is a fixed field.
+    pub fn offset_of(&self, name: &str) -> Option<usize> {
+        let mut at = 0;
+        for f in self.fields {
+            if f.name == name {
+                return Some(at);
+            }
+            at += f.ty.size();
+        }
+        None
+    }
+}
+
+/// The first fields of every reply body, before the type's own ([`MsgType::reply_body`]).
+pub const REPLY_HEAD: &[Field] = &[
+    field("request_seq", WireType::U16, "the command's seq"),
+    field(
+        "status",
+        WireType::U8,
+        "0 ok, 1 bad argument, 2 no model (the device is in a fault state; nothing changed)",
+    ),
+];
+
+const NO_FIELDS: Body = Body {
+    fields: &[],
+    tail: Tail::None,
+};
+
+const FLAGS_BODY: Body = Body {
+    fields: &[
+        field(
+            "timestamp_us",
+            WireType::U32,
+            "time of the frame's last sample in µs since the first ADC scan, from the sample clock",
+        ),
+        field(
+            "status",
+            WireType::U8,
+            "bit 0 ARMED, bit 1 LATE, bit 2 TARED, bit 3 HAND_UNSTABLE; others 0",
+        ),
+        field(
+            "channels",
+            WireType::U8,
+            "N, channels (16 hand, 4 suction), 1…16",
+        ),
+        field(
+            "unstable",
+            WireType::U16,
+            "bit c: channel c unstable; bits ≥ N are 0",
+        ),
+        field(
+            "fault",
+            WireType::U16,
+            "bit c: channel c faulted, not predicted on",
+        ),
+        field(
+            "overruns",
+            WireType::U16,
+            "late frames since boot, saturating",
+        ),
+        field(
+            "skipped",
+            WireType::U16,
+            "frames acquired but never sent since boot, saturating",
+        ),
+    ],
+    tail: Tail::PerChannel(field(
+        "p",
+        WireType::U16,
+        "p(unstable) of channel c, Q0.15 (0…32 767 = 0…1), or 0xFFFF = not predicted",
+    )),
+};
+
+const SAMPLES_BODY: Body = Body {
+    fields: &[
+        field(
+            "timestamp_us",
+            WireType::U32,
+            "the frame's sample clock, as in its flag frame",
+        ),
+        field("status", WireType::U8, "as in the flag frame"),
+        field(
+            "marks",
+            WireType::U8,
+            "bit 0 grasp start, bit 1 lift, bit 2 release; others 0",
+        ),
+        field("channels", WireType::U8, "N, channels, 1…16"),
+        field(
+            "unit",
+            WireType::U8,
+            "unit of value: 0 mN (hand), 1 counts = 1/16 ADC count (suction)",
+        ),
+        field(
+            "fault",
+            WireType::U16,
+            "bit c: channel c faulted; bits ≥ N are 0",
+        ),
+    ],
+    tail: Tail::PerChannel(field(
+        "value",
+        WireType::I32,
+        "channel c's decimated model input after the live zero, tare and scaling, in `unit`",
+    )),
+};
+
+const FAULT_BODY: Body = Body {
+    fields: &[
+        field(
+            "timestamp_us",
+            WireType::U32,
+            "sample clock, as flags; 0 for a sensor stall",
+        ),
+        field("code", WireType::U8, "fault code (SG_FAULT_*)"),
+        field(
+            "detail",
+            WireType::U8,
+            "code 1: the blob error kind, else 0",
+        ),
+        field("value", WireType::U32, "code-specific value"),
+    ],
+    tail: Tail::None,
+};
+
+const ERROR_BODY: Body = Body {
+    fields: &[
+        field(
+            "error",
+            WireType::U8,
+            "decode error code of the rejected frame (SG_E_*)",
+        ),
+        field(
+            "msg_type",
+            WireType::U8,
+            "its type when its CRC was good, else 0",
+        ),
+        field(
+            "request_seq",
+            WireType::U16,
+            "its seq when its CRC was good, else 0xFFFF",
+        ),
+    ],
+    tail: Tail::None,
+};
+
+const TOKEN_BODY: Body = Body {
+    fields: &[field("token", WireType::U32, "echoed in the reply")],
+    tail: Tail::None,
+};
+
+const THRESHOLD_BODY: Body = Body {
+    fields: &[
+        field(
+            "threshold_q15",
+            WireType::U16,
+            "p(unstable) threshold, Q0.15, 1…32 767",
+        ),
+        field(
+            "raise_after",
+            WireType::U8,
+            "consecutive frames at or above it before a flag rises, ≥ 1",
+        ),
+        field(
+            "clear_after",
+            WireType::U8,
+            "consecutive frames below it before a flag clears, ≥ 1",
+        ),
+    ],
+    tail: Tail::None,
+};
+
+const MODE_BODY: Body = Body {
+    fields: &[field(
+        "mode",
+        WireType::U8,
+        "0 flags, 1 flags + samples, 2 samples",
+    )],
+    tail: Tail::None,
+};
+
+const UPLOAD_BEGIN_BODY: Body = Body {
+    fields: &[
+        field("size", WireType::U32, "blob length in bytes"),
+        field("crc", WireType::U32, "CRC-32/ISO-HDLC of the whole blob"),
+    ],
+    tail: Tail::None,
+};
+
+const UPLOAD_CHUNK_BODY: Body = Body {
+    fields: &[field(
+        "offset",
+        WireType::U32,
+        "offset of the data in the blob",
+    )],
+    tail: Tail::ChunkData,
+};
+
+const UPLOAD_REPLY_BODY: Body = Body {
+    fields: &[
+        field(
+            "code",
+            WireType::U8,
+            "upload code (SG_UP_*): 0 accepted, else why it was refused",
+        ),
+        field(
+            "detail",
+            WireType::U8,
+            "blob error kind (bad blob), flash step (flash)",
+        ),
+        field(
+            "slot",
+            WireType::U8,
+            "slot written (begin, chunk) or made active (commit)",
+        ),
+        field(
+            "value",
+            WireType::U32,
+            "next expected offset, CRC, rate … (see below)",
+        ),
+    ],
+    tail: Tail::None,
+};
+
+const INFO_REPLY_BODY: Body = Body {
+    fields: &[
+        field("version", WireType::U8, "protocol version (1)"),
+        field(
+            "firmware",
+            WireType::Bytes(3),
+            "firmware version: major, minor, patch",
+        ),
+        field("profile", WireType::U8, "sensor profile: 0 hand, 1 suction"),
+        field("channels", WireType::U8, "N, channels in flag frames"),
+        field("oversample", WireType::U8, "ADC samples per model sample"),
+        field(
+            "model_ok",
+            WireType::U8,
+            "1 if the model blob is valid and running",
+        ),
+        field(
+            "variant",
+            WireType::U8,
+            "blob header byte 16; 0xFF without a model",
+        ),
+        field("reserved", WireType::U8, "0"),
+        field("hidden", WireType::U16, "hidden size of LSTM 0"),
+        field("model_id", WireType::U32, "model id from the blob header"),
+        field(
+            "model_crc",
+            WireType::U32,
+            "CRC-32 of the model blob (its fingerprint)",
+        ),
+        field(
+            "sample_rate_mhz",
+            WireType::U32,
+            "model sample rate = frame rate, mHz",
+        ),
+        field("threshold_q15", WireType::U16, "threshold in force, Q0.15"),
+        field("raise_after", WireType::U8, "hysteresis in force"),
+        field("clear_after", WireType::U8, "hysteresis in force"),
+        field(
+            "name",
+            WireType::Bytes(12),
+            "model name, ASCII, zero padded",
+        ),
+    ],
+    tail: Tail::None,
+};
+
+impl MsgType {
+    /// Every message type, in code order.
+    pub const ALL: [Self; 14] = [
+        Self::Flags,
+        Self::Fault,
+        Self::Error,
+        Self::Samples,
+        Self::Ping,
+        Self::GraspStart,
+        Self::Release,
+        Self::SetThreshold,
+        Self::Info,
+        Self::Lift,
+        Self::StreamMode,
+        Self::UploadBegin,
+        Self::UploadChunk,
+        Self::UploadCommit,
+    ];
+
+    /// The type of a code (a reply's code without [`msg_type::REPLY`]).
+    pub const fn from_u8(v: u8) -> Option<Self> {
+        let mut i = 0;
+        while i < Self::ALL.len() {
+            if Self::ALL[i] as u8 == v {
+                return Some(Self::ALL[i]);
+            }
+            i += 1;
+        }
+        None
+    }
+
+    /// Whether the controller sends it (then the device answers with a reply of type
+    /// `self | REPLY`).
+    pub const fn is_command(self) -> bool {
+        self as u8 >= 0x10
+    }
+
+    /// The name the docs and the C header use (`SG_T_` + upper case, spaces as `_`).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Flags => "flags",
+            Self::Fault => "fault",
+            Self::Error => "error",
+            Self::Samples => "samples",
+            Self::Ping => "ping",
+            Self::GraspStart => "grasp start",
+            Self::Release => "release",
+            Self::SetThreshold => "set threshold",
+            Self::Info => "info",
+            Self::Lift => "lift",
+            Self::StreamMode => "stream mode",
+            Self::UploadBegin => "upload begin",
+            Self::UploadChunk => "upload chunk",
+            Self::UploadCommit => "upload commit",
+        }
+    }
+
+    /// The layout of this type's body (a command's, or a device message's).
+    pub const fn body(self) -> Body {
+        match self {
+            Self::Flags => FLAGS_BODY,
+            Self::Samples => SAMPLES_BODY,
+            Self::Fault => FAULT_BODY,
+            Self::Error => ERROR_BODY,
+            Self::Ping => TOKEN_BODY,
+            Self::GraspStart | Self::Release | Self::Info | Self::Lift | Self::UploadCommit => {
+                NO_FIELDS
+            }
+            Self::SetThreshold => THRESHOLD_BODY,
+            Self::StreamMode => MODE_BODY,
+            Self::UploadBegin => UPLOAD_BEGIN_BODY,
+            Self::UploadChunk => UPLOAD_CHUNK_BODY,
+        }
+    }
+
+    /// The fields of the reply to this command after [`REPLY_HEAD`]; `None` for device messages.
+    pub const fn reply_body(self) -> Option<Body> {
+        Some(match self {
+            Self::Flags | Self::Samples | Self::Fault | Self::Error => return None,
+            Self::Ping => TOKEN_BODY,
+            Self::GraspStart | Self::Release | Self::Lift => NO_FIELDS,
+            Self::SetThreshold => THRESHOLD_BODY,
+            Self::Info => INFO_REPLY_BODY,
+            Self::StreamMode => MODE_BODY,
+            Self::UploadBegin | Self::UploadChunk | Self::UploadCommit => UPLOAD_REPLY_BODY,
+        })
+    }
+}
+
+/// Bytes of [`REPLY_HEAD`].
+const REPLY_HEAD_LEN: usize = Body {
+    fields: REPLY_HEAD,
+    tail: Tail::None,
+}
+.fixed_len();
+
+/// The body length (range) a payload of type byte `t` may have: a device message's or
+/// command's from [`MsgType::body`], a reply's [`REPLY_HEAD`] + [`MsgType::reply_body`];
+/// `None` for a code v1 does not define.
+pub const fn body_len_range(t: u8) -> Option<(usize, usize)> {
+    let Some(m) = MsgType::from_u8(t & !msg_type::REPLY) else {
+        return None;
+    };
+    if t & msg_type::REPLY == 0 {
+        return Some(m.body().len_range());
+    }
+    match m.reply_body() {
+        Some(b) => Some((
+            REPLY_HEAD_LEN + b.fixed_len(),
+            REPLY_HEAD_LEN + b.fixed_len(),
+        )),
+        None => None,
+    }
+}
+
+/// Message type codes (byte 1 of the payload) as bytes, from [`MsgType`].
+pub mod msg_type {
+    use super::MsgType;
+    /// Device → controller: one frame of flags.
+    pub const FLAGS: u8 = MsgType::Flags as u8;
+    /// Device → controller: a system fault.
+    pub const FAULT: u8 = MsgType::Fault as u8;
+    /// Device → controller: a received frame was rejected.
+    pub const ERROR: u8 = MsgType::Error as u8;
+    /// Device → controller: one frame of model input per channel.
+    pub const SAMPLES: u8 = MsgType::Samples as u8;
+    /// Controller → device: ping.
+    pub const PING: u8 = MsgType::Ping as u8;
+    /// Controller → device: grasp start.
+    pub const GRASP_START: u8 = MsgType::GraspStart as u8;
+    /// Controller → device: release.
+    pub const RELEASE: u8 = MsgType::Release as u8;
+    /// Controller → device: set threshold and hysteresis.
+    pub const SET_THRESHOLD: u8 = MsgType::SetThreshold as u8;
+    /// Controller → device: info request.
+    pub const INFO: u8 = MsgType::Info as u8;
+    /// Controller → device: the lift starts.
+    pub const LIFT: u8 = MsgType::Lift as u8;
+    /// Controller → device: stream mode.
+    pub const STREAM_MODE: u8 = MsgType::StreamMode as u8;
+    /// Controller → device: start a model upload.
+    pub const UPLOAD_BEGIN: u8 = MsgType::UploadBegin as u8;
+    /// Controller → device: one chunk of the blob.
+    pub const UPLOAD_CHUNK: u8 = MsgType::UploadChunk as u8;
+    /// Controller → device: check the uploaded blob and make it the active model.
+    pub const UPLOAD_COMMIT: u8 = MsgType::UploadCommit as u8;
     /// Bit set in the type of a reply: reply type = command type | REPLY.
     pub const REPLY: u8 = 0x80;
 }
 
-/// Status bits of a flag frame (byte 8).
-pub mod status {
-    /// Flagging is on (after boot and grasp start; off after release). When off, the unstable
-    /// mask is 0 but p(unstable) is still reported.
-    pub const ARMED: u8 = 1 << 0;
-    /// This frame finished after its deadline (it is still sent; the overrun counter counts it).
-    pub const LATE: u8 = 1 << 1;
-    /// The tare of the suction profile is in force.
-    pub const TARED: u8 = 1 << 2;
-    /// The hand flag: the hand-level decision over the channels in contact
-    /// (`decision::HandConfig`) is up. Always 0 while not armed. The board's UNSTABLE line
-    /// carries the same bit.
-    pub const HAND_UNSTABLE: u8 = 1 << 3;
+codes! {
+    /// Status bits of flag and samples frames (byte 8).
+    pub mod status {
+        /// Flagging is on (after boot and grasp start; off after release). When off, the unstable
+        /// mask is 0 but p(unstable) is still reported.
+        ARMED = 1 << 0;
+        /// This frame finished after its deadline (it is still sent; the overrun counter counts it).
+        LATE = 1 << 1;
+        /// The tare of the suction profile is in force.
+        TARED = 1 << 2;
+        /// The hand flag: the hand-level decision over the channels in contact
+        /// (`decision::HandConfig`) is up. Always 0 while not armed. The board's UNSTABLE line
+        /// carries the same bit.
+        HAND_UNSTABLE = 1 << 3;
+    }
 }
 
 /// One frame of per-channel results (type 0x01).
@@ -113,7 +662,7 @@ pub struct Flags {
 impl Flags {
     /// Body length for `channels` channels.
     pub const fn body_len(channels: usize) -> usize {
-        14 + 2 * channels
+        MsgType::Flags.body().len(channels)
     }
 
     /// Whether the hand flag ([`status::HAND_UNSTABLE`]) is up.
@@ -136,16 +685,18 @@ impl Flags {
     }
 }
 
-/// Phase-mark bits of a samples frame: the commands handled since the previous frame.
-pub mod mark {
-    /// Grasp start (`grasp_start` of a recording).
-    pub const GRASP_START: u8 = 1 << 0;
-    /// Lift (`lift_start` of a recording).
-    pub const LIFT: u8 = 1 << 1;
-    /// Release.
-    pub const RELEASE: u8 = 1 << 2;
-    /// All bits v1 defines.
-    pub const KNOWN: u8 = GRASP_START | LIFT | RELEASE;
+codes! {
+    /// Phase-mark bits of a samples frame: the commands handled since the previous frame.
+    pub mod mark {
+        /// Grasp start (`grasp_start` of a recording).
+        GRASP_START = 1 << 0;
+        /// Lift (`lift_start` of a recording).
+        LIFT = 1 << 1;
+        /// Release.
+        RELEASE = 1 << 2;
+        /// All bits v1 defines.
+        KNOWN = GRASP_START | LIFT | RELEASE;
+    }
 }
 
 /// Which frames the device streams each model period ([`Command::StreamMode`]).
@@ -206,53 +757,57 @@ pub struct Samples {
 impl Samples {
     /// Body length for `channels` channels.
     pub const fn body_len(channels: usize) -> usize {
-        10 + 4 * channels
+        MsgType::Samples.body().len(channels)
     }
 }
 
-/// Upload reply codes (byte 3 of an upload reply body): 0 accepted, else why the command was
-/// refused. Each refusal says what to fix (`docs/protocol.md`).
-pub mod upload_code {
-    /// Accepted.
-    pub const OK: u8 = 0;
-    /// Chunk or commit without an upload in progress: send upload begin.
-    pub const NOT_STARTED: u8 = 1;
-    /// Flagging is armed on a running model: send release first (erasing stalls the CPU).
-    pub const ARMED: u8 = 2;
-    /// Declared size 0, not a multiple of 4 or over the slot (value: largest size).
-    pub const WRONG_SIZE: u8 = 3;
-    /// Chunk at another offset than the next expected one (value: next expected offset).
-    pub const OUT_OF_ORDER: u8 = 4;
-    /// Chunk CRC does not match its data (value: next expected offset).
-    pub const BAD_CHUNK: u8 = 5;
-    /// Chunk runs past the declared size or is not a multiple of 4 bytes (value: next offset).
-    pub const CHUNK_LENGTH: u8 = 6;
-    /// Flash erase, write or read-back failed (detail: 1 erase, 2 write, 3 read-back).
-    pub const FLASH: u8 = 7;
-    /// Commit before every byte arrived (value: bytes received).
-    pub const INCOMPLETE: u8 = 8;
-    /// The whole-blob CRC differs from the one announced (value: CRC of the flash contents).
-    pub const BLOB_CRC: u8 = 9;
-    /// The blob does not parse (detail, value: the blob error as in fault frames).
-    pub const BAD_BLOB: u8 = 10;
-    /// The model's rate is not one the profile runs (value: the model's rate, mHz).
-    pub const RATE_MISMATCH: u8 = 11;
-    /// The model's input unit is not the profile's (value: the model's unit code).
-    pub const UNIT_MISMATCH: u8 = 12;
-    /// This build has no model flash (e.g. a host replay without a flash).
-    pub const UNSUPPORTED: u8 = 13;
+codes! {
+    /// Upload reply codes (byte 3 of an upload reply body): 0 accepted, else why the command was
+    /// refused. Each refusal says what to fix (`docs/protocol.md`).
+    pub mod upload_code {
+        /// Accepted.
+        OK = 0;
+        /// Chunk or commit without an upload in progress: send upload begin.
+        NOT_STARTED = 1;
+        /// Flagging is armed on a running model: send release first (erasing stalls the CPU).
+        ARMED = 2;
+        /// Declared size 0, not a multiple of 4 or over the slot (value: largest size).
+        WRONG_SIZE = 3;
+        /// Chunk at another offset than the next expected one (value: next expected offset).
+        OUT_OF_ORDER = 4;
+        /// Chunk CRC does not match its data (value: next expected offset).
+        BAD_CHUNK = 5;
+        /// Chunk runs past the declared size or is not a multiple of 4 bytes (value: next offset).
+        CHUNK_LENGTH = 6;
+        /// Flash erase, write or read-back failed (detail: 1 erase, 2 write, 3 read-back).
+        FLASH = 7;
+        /// Commit before every byte arrived (value: bytes received).
+        INCOMPLETE = 8;
+        /// The whole-blob CRC differs from the one announced (value: CRC of the flash contents).
+        BLOB_CRC = 9;
+        /// The blob does not parse (detail, value: the blob error as in fault frames).
+        BAD_BLOB = 10;
+        /// The model's rate is not one the profile runs (value: the model's rate, mHz).
+        RATE_MISMATCH = 11;
+        /// The model's input unit is not the profile's (value: the model's unit code).
+        UNIT_MISMATCH = 12;
+        /// This build has no model flash (e.g. a host replay without a flash).
+        UNSUPPORTED = 13;
+    }
 }
 
-/// System fault codes (type 0x02, byte 8).
-pub mod fault_code {
-    /// The model blob failed validation (detail: [`crate::blob::BlobError`] kind, value: extra).
-    pub const BAD_MODEL: u8 = 1;
-    /// The model's sample rate is not one the sensor profile runs (value: the model's rate in mHz).
-    pub const RATE_MISMATCH: u8 = 2;
-    /// The ADC/DMA stopped delivering samples (value: frames since the last scan).
-    pub const SENSOR_STALL: u8 = 3;
-    /// The model expects another input unit (mN vs counts) than the sensor profile delivers.
-    pub const UNIT_MISMATCH: u8 = 4;
+codes! {
+    /// System fault codes (type 0x02, byte 8).
+    pub mod fault_code {
+        /// The model blob failed validation (detail: [`crate::blob::BlobError`] kind, value: extra).
+        BAD_MODEL = 1;
+        /// The model's sample rate is not one the sensor profile runs (value: the model's rate in mHz).
+        RATE_MISMATCH = 2;
+        /// The ADC/DMA stopped delivering samples (value: frames since the last scan).
+        SENSOR_STALL = 3;
+        /// The model expects another input unit (mN vs counts) than the sensor profile delivers.
+        UNIT_MISMATCH = 4;
+    }
 }
 
 /// A system fault (type 0x02): the device is up but not predicting.
@@ -672,33 +1227,6 @@ impl Reader<'_> {
     }
 }
 
-/// Body length of the fixed-size types; `None` for flags, samples (N), upload chunks (data
-/// length) and unknown types.
-fn fixed_body_len(t: u8) -> Option<usize> {
-    use msg_type::*;
-    Some(match t {
-        FAULT => 10,
-        ERROR => 4,
-        PING => 4,
-        GRASP_START | RELEASE | INFO | LIFT | UPLOAD_COMMIT => 0,
-        SET_THRESHOLD => 4,
-        STREAM_MODE => 1,
-        UPLOAD_BEGIN => 8,
-        x if x == REPLY | PING => 7,
-        x if x == REPLY | GRASP_START || x == REPLY | RELEASE || x == REPLY | LIFT => 3,
-        x if x == REPLY | SET_THRESHOLD => 7,
-        x if x == REPLY | INFO => 43,
-        x if x == REPLY | STREAM_MODE => 4,
-        x if x == REPLY | UPLOAD_BEGIN
-            || x == REPLY | UPLOAD_CHUNK
-            || x == REPLY | UPLOAD_COMMIT =>
-        {
-            10
-        }
-        _ => return None,
-    })
-}
-
 /// Writes the payload (header, body, CRC) of `frame` into `out` and returns its length
 /// (at most [`MAX_PAYLOAD`]; `out` must hold that many bytes, else the frame is cut and the
 /// returned length is 0).
@@ -902,26 +1430,11 @@ pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
         len: body.len() as u8,
     };
     let bad_value = DecodeError::BadValue { msg_type: t };
-    if t == msg_type::FLAGS || t == msg_type::SAMPLES {
-        // The exact length depends on N, checked once N is read.
-        let min = if t == msg_type::FLAGS {
-            Flags::body_len(0)
-        } else {
-            Samples::body_len(0)
-        };
-        if body.len() < min {
-            return Err(bad_len);
-        }
-    } else if t == msg_type::UPLOAD_CHUNK {
-        if !(4 + 1 + 4..=4 + MAX_CHUNK + 4).contains(&body.len()) {
-            return Err(bad_len);
-        }
-    } else {
-        match fixed_body_len(t) {
-            None => return Err(DecodeError::UnknownType(t)),
-            Some(len) if len != body.len() => return Err(bad_len),
-            Some(_) => {}
-        }
+    // Per-channel bodies are checked again once N is read.
+    match body_len_range(t) {
+        None => return Err(DecodeError::UnknownType(t)),
+        Some((min, max)) if !(min..=max).contains(&body.len()) => return Err(bad_len),
+        Some(_) => {}
     }
     let mut r = Reader { buf: body, pos: 0 };
     let msg = match t {
@@ -1632,6 +2145,197 @@ mod tests {
             v.push(Frame { seq: 42, msg });
         }
         v
+    }
+
+    /// Reads a body by the layout table alone: (field name, value) for every fixed field, then
+    /// the per-channel values (`name[c]`) or the chunk's data length and CRC.
+    fn read_by_layout(body: &Body, bytes: &[u8]) -> Vec<(String, u64)> {
+        let mut out = Vec::new();
+        let mut at = 0;
+        let le = |b: &[u8]| b.iter().rev().fold(0u64, |v, &x| (v << 8) | x as u64);
+        for f in body.fields {
+            let n = f.ty.size();
+            out.push((f.name.to_string(), le(&bytes[at..at + n.min(8)])));
+            at += n;
+        }
+        match body.tail {
+            Tail::None => {}
+            Tail::PerChannel(f) => {
+                let n = f.ty.size();
+                for (c, v) in bytes[at..].chunks(n).enumerate() {
+                    out.push((format!("{}[{c}]", f.name), le(v)));
+                }
+            }
+            Tail::ChunkData => {
+                out.push(("len".into(), (bytes.len() - at - 4) as u64));
+                out.push(("chunk_crc".into(), le(&bytes[bytes.len() - 4..])));
+            }
+        }
+        out
+    }
+
+    /// The encoder puts every field where the layout table (the C header's and the docs' source)
+    /// says, with the width it says: each frame of every kind is encoded, read back by the table
+    /// alone, and compared field by field with the values it was made from.
+    #[test]
+    fn encoder_follows_the_layout_table() {
+        fn expect(msg: &Message) -> Vec<(String, u64)> {
+            let v = |pairs: &[(&str, u64)]| -> Vec<(String, u64)> {
+                pairs.iter().map(|(n, x)| (n.to_string(), *x)).collect()
+            };
+            let mut e = match *msg {
+                Message::Flags(f) => v(&[
+                    ("timestamp_us", f.timestamp_us as u64),
+                    ("status", f.status as u64),
+                    ("channels", f.channels as u64),
+                    ("unstable", f.unstable as u64),
+                    ("fault", f.fault as u64),
+                    ("overruns", f.overruns as u64),
+                    ("skipped", f.skipped as u64),
+                ]),
+                Message::Samples(s) => v(&[
+                    ("timestamp_us", s.timestamp_us as u64),
+                    ("status", s.status as u64),
+                    ("marks", s.marks as u64),
+                    ("channels", s.channels as u64),
+                    ("unit", s.unit as u64),
+                    ("fault", s.fault as u64),
+                ]),
+                Message::Fault(f) => v(&[
+                    ("timestamp_us", f.timestamp_us as u64),
+                    ("code", f.code as u64),
+                    ("detail", f.detail as u64),
+                    ("value", f.value as u64),
+                ]),
+                Message::Error(x) => v(&[
+                    ("error", x.error as u64),
+                    ("msg_type", x.msg_type as u64),
+                    ("request_seq", x.request_seq as u64),
+                ]),
+                Message::Command(c) => match c {
+                    Command::Ping { token } => v(&[("token", token as u64)]),
+                    Command::SetThreshold {
+                        threshold_q15,
+                        raise_after,
+                        clear_after,
+                    } => v(&[
+                        ("threshold_q15", threshold_q15 as u64),
+                        ("raise_after", raise_after as u64),
+                        ("clear_after", clear_after as u64),
+                    ]),
+                    Command::StreamMode(m) => v(&[("mode", m as u64)]),
+                    Command::UploadBegin { size, crc } => {
+                        v(&[("size", size as u64), ("crc", crc as u64)])
+                    }
+                    Command::UploadChunk(ch) => v(&[
+                        ("offset", ch.offset as u64),
+                        ("len", ch.len as u64),
+                        ("chunk_crc", ch.crc as u64),
+                    ]),
+                    Command::GraspStart
+                    | Command::Release
+                    | Command::Info
+                    | Command::Lift
+                    | Command::UploadCommit => vec![],
+                },
+                Message::Reply(r) => {
+                    let mut e = v(&[
+                        ("request_seq", r.request_seq as u64),
+                        ("status", r.status as u64),
+                    ]);
+                    e.extend(match r.body {
+                        ReplyBody::Pong { token } => v(&[("token", token as u64)]),
+                        ReplyBody::ThresholdSet {
+                            threshold_q15,
+                            raise_after,
+                            clear_after,
+                        } => v(&[
+                            ("threshold_q15", threshold_q15 as u64),
+                            ("raise_after", raise_after as u64),
+                            ("clear_after", clear_after as u64),
+                        ]),
+                        ReplyBody::StreamMode(m) => v(&[("mode", m as u64)]),
+                        ReplyBody::Upload {
+                            code,
+                            detail,
+                            slot,
+                            value,
+                            ..
+                        } => v(&[
+                            ("code", code as u64),
+                            ("detail", detail as u64),
+                            ("slot", slot as u64),
+                            ("value", value as u64),
+                        ]),
+                        ReplyBody::Info(i) => {
+                            let le =
+                                |b: &[u8]| b.iter().rev().fold(0u64, |v, &x| (v << 8) | x as u64);
+                            v(&[
+                                ("version", VERSION as u64),
+                                ("firmware", le(&i.firmware)),
+                                ("profile", i.profile as u64),
+                                ("channels", i.channels as u64),
+                                ("oversample", i.oversample as u64),
+                                ("model_ok", i.model_ok as u64),
+                                ("variant", i.variant as u64),
+                                ("reserved", 0),
+                                ("hidden", i.hidden as u64),
+                                ("model_id", i.model_id as u64),
+                                ("model_crc", i.model_crc as u64),
+                                ("sample_rate_mhz", i.sample_rate_mhz as u64),
+                                ("threshold_q15", i.threshold_q15 as u64),
+                                ("raise_after", i.raise_after as u64),
+                                ("clear_after", i.clear_after as u64),
+                                ("name", le(&i.name[..8])),
+                            ])
+                        }
+                        ReplyBody::GraspStarted | ReplyBody::Released | ReplyBody::Lifted => {
+                            vec![]
+                        }
+                    });
+                    e
+                }
+            };
+            match *msg {
+                Message::Flags(f) => {
+                    e.extend((0..f.channels as usize).map(|c| (format!("p[{c}]"), f.p[c] as u64)))
+                }
+                Message::Samples(s) => e.extend(
+                    (0..s.channels as usize)
+                        .map(|c| (format!("value[{c}]"), s.value[c] as u32 as u64)),
+                ),
+                _ => {}
+            }
+            e
+        }
+        let mut kinds = std::collections::BTreeSet::new();
+        for f in all_kinds() {
+            let mut payload = [0u8; MAX_PAYLOAD];
+            let n = encode_payload(&f, &mut payload);
+            let t = payload[1];
+            let m = MsgType::from_u8(t & !msg_type::REPLY).unwrap();
+            let body = &payload[HEADER_LEN..n - CRC_LEN];
+            let got = if t & msg_type::REPLY != 0 {
+                let head = Body {
+                    fields: REPLY_HEAD,
+                    tail: Tail::None,
+                };
+                let mut g = read_by_layout(&head, &body[..head.fixed_len()]);
+                g.extend(read_by_layout(
+                    &m.reply_body().unwrap(),
+                    &body[head.fixed_len()..],
+                ));
+                g
+            } else {
+                read_by_layout(&m.body(), body)
+            };
+            assert_eq!(got, expect(&f.msg), "{f:?}");
+            kinds.insert(t);
+        }
+        // Every device message and command, and the replies with fields, were checked.
+        for m in MsgType::ALL {
+            assert!(kinds.contains(&(m as u8)), "{m:?} not among the examples");
+        }
     }
 
     #[test]
