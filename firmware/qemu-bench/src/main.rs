@@ -7,10 +7,14 @@
 //! of the LSTM state must equal what the host core produced (`expected.bin`, pinned by the
 //! host test `golden_vectors`). Then it counts instructions per channel step and per part.
 //!
-//! Modules: [`insns`] (SysTick instruction counter) and [`harness`] (output, checks, exit codes).
+//! Last, the cycle model's fetch-bandwidth probe ([`fetch`]).
+//!
+//! Modules: [`insns`] (SysTick instruction counter), [`harness`] (output, checks, exit codes) and
+//! [`fetch`] (the fetch-bandwidth probe).
 #![no_std]
 #![no_main]
 
+mod fetch;
 mod harness;
 mod insns;
 
@@ -799,5 +803,6 @@ fn main() -> ! {
         macs,
         lstm_macs
     );
+    fetch::probe();
     harness::finish()
 }
