@@ -1330,6 +1330,25 @@ mod arm {
         };
     }
 
+    /// The last chunk of the full-h kernel's x part (position MAX_BLOCK_X_CHUNKS − 1, run
+    /// whenever there is an x part): as `FULL_CHUNK`, but its last activation and weight loads
+    /// write their addresses back, advancing r1 by 8 and r0 by 16 · MAX_BLOCK_X_CHUNKS to the h
+    /// part's bases (64 bytes).
+    macro_rules! FULL_CHUNK_XLAST {
+        () => {
+            concat!(
+                "ldr r2, [r1, #(8 * slg_p + 4)]
+                 ldr r4, [r0, #(16 * slg_p + 4)]
+                 ldr.w r3, [r1, #(8 * slg_p + 8)]!
+                 ldr r5, [r0, #(16 * slg_p + 8)]
+                 ldr r6, [r0, #(16 * slg_p + 12)]
+                 ldr.w r7, [r0, #(16 * slg_p + 16)]!
+                 ",
+                FULL_MACS!()
+            )
+        };
+    }
+
     /// `BLOCK_EXTRACT` for the full-h kernel's registers: b0's sum into r8 (a0's in r10), b1's
     /// into r11 (a1's in lr).
     macro_rules! FULL_EXTRACT {
@@ -1420,13 +1439,19 @@ mod arm {
                 "str r1, [sp, #0]",
                 "ldr r1, [r0, #12]",
                 "str r1, [sp, #8]",
-                // x entry: the end of the unrolled x chunks − x chunks · 60 (ADR on a word
-                // boundary, as in `lstm_kernel`).
+                // x entry: the end of the unrolled x chunks − 4 − x chunks · 60 (the last chunk
+                // is 64 bytes), or with no x part the stub that moves the bases on (ADRs on a
+                // word boundary, as in `lstm_kernel`).
                 "ldr r3, [r0, #20]",
                 "movs r4, #{chunk_bytes}",
                 ".p2align 2",
                 "adr.w r5, 12f",
+                "subs r5, r5, #4",
                 "mls r5, r3, r4, r5",
+                "cbnz r3, 17f",
+                ".p2align 2",
+                "adr.w r5, 15f",
+                "17:",
                 "orr r5, r5, #1",
                 "str r5, [sp, #4]",
                 "rsb r4, r3, #{xmax}",
@@ -1464,15 +1489,22 @@ mod arm {
                 "subw r1, r12, #(8 * {xmax} + 4)",
                 FULL_CLEAR!("r2"),
                 "ldr pc, [sp, #4]",
-                // The block loop. x part: entered at its first chunk, accumulators clear.
+                // No x part: the bases as the x part's last chunk leaves them.
+                "15:",
+                "adds r0, #(16 * {xmax})",
+                "adds r1, #(8 * {xmax})",
+                "b 12f",
+                // The block loop. x part: entered at its first chunk, accumulators clear; its
+                // last chunk moves r0 and r1 on to the h part.
                 ".p2align 2",
                 "11:",
                 ".set slg_p, 0",
-                ".rept {xmax}",
+                ".rept {xmax} - 1",
                 FULL_CHUNK!(),
                 ".endr",
+                FULL_CHUNK_XLAST!(),
                 "12:",
-                ".if (12b - 11b) != {chunk_bytes} * {xmax}",
+                ".if (12b - 11b) != {chunk_bytes} * {xmax} + 4",
                 ".error \"dsp full-h kernel: an x chunk is not 60 bytes\"",
                 ".endif",
                 FULL_EXTRACT!(),
@@ -1483,8 +1515,6 @@ mod arm {
                 "str.w lr, [r2, #16]",
                 "str.w r11, [r2, #24]",
                 FULL_CLEAR!("r3"),
-                "adds r0, #(16 * {xmax})",
-                "adds r1, #(8 * {xmax})",
                 // h loop: passes of 8 chunks until r1's low byte is 0 (after the 4th).
                 ".p2align 2",
                 "20:",
