@@ -1426,8 +1426,9 @@ mod arm {
     unsafe fn lstm_block_kernel_full(p: &BlockParams) {
         // Registers in the block loop: r0 weights, r1 activations (each 4 bytes before the
         // current position 0), r2-r3 activation words, r4-r7 weight words, r8-r12 and lr the
-        // accumulators. Stack: [sp] out_end, [sp+4] the x entry, [sp+8] out, [sp+12] 16 · (x
-        // chunks missing from MAX_BLOCK_X_CHUNKS), then the activation area.
+        // accumulators. Stack: [sp] out_end − 4, [sp+4] the x entry, [sp+8] out − 4 (the block's
+        // last store writes it back), [sp+12] 16 · (x chunks missing from MAX_BLOCK_X_CHUNKS),
+        // then the activation area.
         // SAFETY: see the caller; every memory access is inside the buffers `p` describes or
         // the kernel's own stack frame (x's copy starts at h − 8 · x chunks ≥ the area's start;
         // h's end is at most the frame's end).
@@ -1435,9 +1436,12 @@ mod arm {
             core::arch::asm!(
                 "push {{r4-r11, lr}}",
                 "sub sp, sp, #{frame}",
+                // The output pointers 4 bytes early: the block's last store writes back.
                 "ldr r1, [r0, #16]",
+                "subs r1, r1, #4",
                 "str r1, [sp, #0]",
                 "ldr r1, [r0, #12]",
+                "subs r1, r1, #4",
                 "str r1, [sp, #8]",
                 // x entry: the end of the unrolled x chunks − 4 − x chunks · 60 (the last chunk
                 // is 64 bytes), or with no x part the stub that moves the bases on (ADRs on a
@@ -1494,9 +1498,12 @@ mod arm {
                 "adds r0, #(16 * {xmax})",
                 "adds r1, #(8 * {xmax})",
                 "b 12f",
-                // The block loop. x part: entered at its first chunk, accumulators clear; its
-                // last chunk moves r0 and r1 on to the h part.
-                ".p2align 2",
+                // The block loop, on a 1 KiB boundary: it fits the ART's 64 lines of 16 bytes
+                // (0.9 KiB; the bench's per-function stall shows it), and no instruction of it sits at the end of a 1 KiB page
+                // (where QEMU ends a translation block and the cycle model charges a refill).
+                // x part: entered at its first chunk, accumulators clear; its last chunk moves
+                // r0 and r1 on to the h part.
+                ".p2align 10",
                 "11:",
                 ".set slg_p, 0",
                 ".rept {xmax} - 1",
@@ -1508,14 +1515,15 @@ mod arm {
                 ".error \"dsp full-h kernel: an x chunk is not 60 bytes\"",
                 ".endif",
                 FULL_EXTRACT!(),
-                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0].
+                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0] (r2 = out − 4).
                 "ldr r2, [sp, #8]",
-                "str.w r10, [r2]",
-                "str.w r8, [r2, #8]",
-                "str.w lr, [r2, #16]",
-                "str.w r11, [r2, #24]",
+                "str.w r10, [r2, #4]",
+                "str.w r8, [r2, #12]",
+                "str.w lr, [r2, #20]",
+                "str.w r11, [r2, #28]",
                 FULL_CLEAR!("r3"),
-                // h loop: passes of 8 chunks until r1's low byte is 0 (after the 4th).
+                // h loop: passes of 8 chunks until r1's low byte is 0 (after the 4th), on a
+                // word boundary (its 32-bit instructions stay word-aligned).
                 ".p2align 2",
                 "20:",
                 ".set slg_p, 0",
@@ -1524,23 +1532,22 @@ mod arm {
                 ".endr",
                 FULL_CHUNK_LAST!(),
                 "lsls r2, r1, #24",
-                "bne 20b",
+                "bne.w 20b",
                 FULL_EXTRACT!(),
                 "ldr r2, [sp, #8]",
                 "ldr r3, [sp, #0]",
                 "ldr r4, [sp, #12]",
-                "str.w r10, [r2, #4]",
-                "str.w r8, [r2, #12]",
-                "str.w lr, [r2, #20]",
-                "str.w r11, [r2, #28]",
-                "adds r2, #32",
+                "str.w r10, [r2, #8]",
+                "str.w r8, [r2, #16]",
+                "str.w lr, [r2, #24]",
+                "str.w r11, [r2, #32]!",
                 "str r2, [sp, #8]",
                 // Back to the x bases: r0 is 4 bytes before the next block, r1 at h's end − 4.
                 "subs r0, r0, r4",
                 "subw r1, r1, #({h_bytes} + 8 * {xmax})",
                 FULL_CLEAR!("r4"),
                 "cmp r2, r3",
-                "beq 9f",
+                "beq.n 9f",
                 "ldr pc, [sp, #4]",
                 "9:",
                 "add sp, sp, #{frame}",
