@@ -257,7 +257,7 @@ struct BlockRows([i8; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
 /// packed by `pack_lstm_blocks` against the row-major portable kernel on the original weights
 /// (`lstm_gate_sums_portable`, an independent path: other layout, other activation order), for
 /// every x part of 0..=MAX_BLOCK_X_CHUNKS chunks and h part of 0..=MAX_BLOCK_H_CHUNKS chunks, on
-/// random and extreme data; the full h part (the straight-line full-h kernel, every x entry)
+/// random and extreme data; the full h part (the full-h kernel's block loop, every x entry)
 /// with 8 more random rounds; plus a misaligned view (the portable fallback).
 fn check_block_kernel() {
     let mut rng = Rng(0xb10c_0001);
