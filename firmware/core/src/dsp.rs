@@ -488,9 +488,11 @@ fn block_row(
 /// activation words and 4 weight words (LDM) and runs 4 × (SMLALD, SXTB16, SMLAD): 16 MACs in
 /// 14 instructions, about 20 cycles, each activation word used by 4 rows; a's sum is the
 /// SMLAD accumulator, b's is (SMLALD − SMLAD) / 256, exact in 64 bits. With exactly
-/// [`MAX_BLOCK_H_CHUNKS`] h chunks (H = 128) a straight-line variant runs instead: the
-/// activations copied once to the stack and read at fixed offsets from sp, the chunk's 6 words
-/// by single pipelined LDRs (18 instructions, 19 cycles). Otherwise the portable code.
+/// [`MAX_BLOCK_H_CHUNKS`] h chunks (H = 128) a variant laid out for the STM32F4's flash runs
+/// instead: the activations copied once to the stack, a block loop of 0.9 KiB that stays in the
+/// ART accelerator's 1 KiB instruction cache (h in 4 passes of 8 chunks), the chunk's 6 words
+/// by single pipelined LDRs with 16-bit encodings (18 instructions, 19 cycles). Otherwise the
+/// portable code.
 pub fn lstm_block_sums<'o>(
     wb: &[i8],
     stride: usize,
@@ -1270,176 +1272,294 @@ mod arm {
         }
     }
 
-    /// One chunk of the full-shape kernel at chunk position `slg_p` (an assembler symbol):
-    /// activations from the stack copy at `sp + 8·slg_p`, weights at `r0 + 16·slg_p`, six
-    /// single LDRs in a row (pipelined: 7 cycles for 6 words) then the 12 MAC instructions of
-    /// `BLOCK_CHUNK`; `$first` starts the a accumulators (r4, r7) with SMUAD.
+    /// The 12 MAC instructions of one chunk of the full-h kernel (see `BLOCK_CHUNK`, the same
+    /// arithmetic): weight words in r4-r7, activation words in r2 (values 4c, 4c+1) and r3;
+    /// pair 0's 64-bit sum in r8:r9 and a0's in r10, pair 1's in r11:r12 and a1's in lr.
+    /// SXTB16 works in place. 48 bytes.
+    macro_rules! FULL_MACS {
+        () => {
+            "smlald r8, r9, r4, r2
+             sxtb16 r4, r4
+             smlad r10, r4, r2, r10
+             smlald r8, r9, r5, r3
+             sxtb16 r5, r5
+             smlad r10, r5, r3, r10
+             smlald r11, r12, r6, r2
+             sxtb16 r6, r6
+             smlad lr, r6, r2, lr
+             smlald r11, r12, r7, r3
+             sxtb16 r7, r7
+             smlad lr, r7, r3, lr"
+        };
+    }
+
+    /// One chunk of the full-h kernel at chunk position `slg_p` (an assembler symbol) from
+    /// the bases r1 (activations) and r0 (weights), both 4 bytes before position 0: six LDRs in
+    /// a row (16-bit encodings, pipelined: 7 cycles for 6 words), then `FULL_MACS`. 60 bytes;
+    /// starting on a word boundary, its 32-bit instructions stay word-aligned.
     macro_rules! FULL_CHUNK {
-        ($a0:literal, $a1:literal) => {
+        () => {
             concat!(
-                "ldr.w r8, [sp, #(8 * slg_p)]
-                 ldr.w r9, [sp, #(8 * slg_p + 4)]
-                 ldr.w r10, [r0, #(16 * slg_p)]
-                 ldr.w r11, [r0, #(16 * slg_p + 4)]
-                 ldr.w r12, [r0, #(16 * slg_p + 8)]
-                 ldr.w lr, [r0, #(16 * slg_p + 12)]
-                 smlald r2, r3, r10, r8
-                 sxtb16 r10, r10
+                "ldr r2, [r1, #(8 * slg_p + 4)]
+                 ldr r3, [r1, #(8 * slg_p + 8)]
+                 ldr r4, [r0, #(16 * slg_p + 4)]
+                 ldr r5, [r0, #(16 * slg_p + 8)]
+                 ldr r6, [r0, #(16 * slg_p + 12)]
+                 ldr r7, [r0, #(16 * slg_p + 16)]
                  ",
-                $a0,
+                FULL_MACS!(),
                 "
-                 smlald r2, r3, r11, r9
-                 sxtb16 r11, r11
-                 smlad r4, r11, r9, r4
-                 smlald r5, r6, r12, r8
-                 sxtb16 r12, r12
-                 ",
-                $a1,
-                "
-                 smlald r5, r6, lr, r9
-                 sxtb16 lr, lr
-                 smlad r7, lr, r9, r7
                  .set slg_p, slg_p + 1"
             )
         };
-        (first) => {
-            FULL_CHUNK!("smuad r4, r10, r8", "smuad r7, r12, r8")
-        };
+    }
+
+    /// The last chunk of a pass of the full-h kernel's h loop (position 7): as `FULL_CHUNK`,
+    /// but its last activation and weight loads write their addresses back, advancing r1 by 64
+    /// and r0 by 128 for the next pass (64 bytes).
+    macro_rules! FULL_CHUNK_LAST {
         () => {
-            FULL_CHUNK!("smlad r4, r10, r8, r4", "smlad r7, r12, r8, r7")
+            concat!(
+                "ldr r2, [r1, #60]
+                 ldr r4, [r0, #116]
+                 ldr.w r3, [r1, #64]!
+                 ldr r5, [r0, #120]
+                 ldr r6, [r0, #124]
+                 ldr.w r7, [r0, #128]!
+                 ",
+                FULL_MACS!()
+            )
         };
     }
 
-    /// Clears the six accumulators in 4 instructions: UMULL of 0 × 0 clears a register pair.
+    /// The last chunk of the full-h kernel's x part (position MAX_BLOCK_X_CHUNKS − 1, run
+    /// whenever there is an x part): as `FULL_CHUNK`, but its last activation and weight loads
+    /// write their addresses back, advancing r1 by 8 and r0 by 16 · MAX_BLOCK_X_CHUNKS to the h
+    /// part's bases (64 bytes).
+    macro_rules! FULL_CHUNK_XLAST {
+        () => {
+            concat!(
+                "ldr r2, [r1, #(8 * slg_p + 4)]
+                 ldr r4, [r0, #(16 * slg_p + 4)]
+                 ldr.w r3, [r1, #(8 * slg_p + 8)]!
+                 ldr r5, [r0, #(16 * slg_p + 8)]
+                 ldr r6, [r0, #(16 * slg_p + 12)]
+                 ldr.w r7, [r0, #(16 * slg_p + 16)]!
+                 ",
+                FULL_MACS!()
+            )
+        };
+    }
+
+    /// `BLOCK_EXTRACT` for the full-h kernel's registers: b0's sum into r8 (a0's in r10), b1's
+    /// into r11 (a1's in lr).
+    macro_rules! FULL_EXTRACT {
+        () => {
+            "lsr.w r8, r8, #8
+             orr.w r8, r8, r9, lsl #24
+             sub.w r8, r8, r10, asr #8
+             lsr.w r11, r11, #8
+             orr.w r11, r11, r12, lsl #24
+             sub.w r11, r11, lr, asr #8"
+        };
+    }
+
+    /// Clears the six accumulators of the full-h kernel (UMULL of 0 × 0 clears a pair), with
+    /// the given low register as the zero.
     macro_rules! FULL_CLEAR {
-        () => {
-            "mov.w r4, #0
-             mov.w r7, #0
-             umull r2, r3, r4, r4
-             umull r5, r6, r4, r4"
+        ($z:literal) => {
+            concat!(
+                "movs ",
+                $z,
+                ", #0
+                 umull r8, r9, ",
+                $z,
+                ", ",
+                $z,
+                "
+                 umull r11, r12, ",
+                $z,
+                ", ",
+                $z,
+                "
+                 mov r10, ",
+                $z,
+                "
+                 mov lr, ",
+                $z
+            )
         };
     }
 
-    /// Words of the full-h kernel's stack copy of the activations (x then h, x right-aligned
-    /// to chunk position MAX_BLOCK_X_CHUNKS).
-    const FULL_ACT_WORDS: usize = 2 * (super::MAX_BLOCK_X_CHUNKS + super::MAX_BLOCK_H_CHUNKS);
+    /// Chunks of the h part per pass of the full-h kernel's h loop.
+    const FULL_PASS_CHUNKS: usize = 8;
     /// Bytes of one `FULL_CHUNK`.
-    const FULL_CHUNK_BYTES: usize = 72;
-    // The copy moves h 8 words (4 chunks) per pass; the h part has a first chunk.
-    const _: () =
-        assert!(super::MAX_BLOCK_H_CHUNKS.is_multiple_of(4) && super::MAX_BLOCK_H_CHUNKS >= 1);
+    const FULL_CHUNK_BYTES: usize = 60;
+    /// Bytes of the h part's activations (64 words): the h loop ends when r1 (4 bytes before
+    /// the next pass) is a multiple of this, so the copy is placed with its end − 4 there.
+    const FULL_H_BYTES: usize = 8 * super::MAX_BLOCK_H_CHUNKS;
+    /// Stack frame of the full-h kernel: out_end, the x entry, out, the x weights' offset, then
+    /// room for the activations (x ending where h starts) at any 256-byte phase.
+    const FULL_ACT_AT: usize = 16;
+    const FULL_FRAME: usize = FULL_ACT_AT + 8 * super::MAX_BLOCK_X_CHUNKS + 2 * FULL_H_BYTES;
+    // The h loop: whole passes; the pass-end test needs h to be 256 bytes; the 16-bit loads
+    // and ADDs reach the x part's offsets.
+    const _: () = assert!(
+        super::MAX_BLOCK_H_CHUNKS == 4 * FULL_PASS_CHUNKS
+            && FULL_H_BYTES == 256
+            && 16 * super::MAX_BLOCK_X_CHUNKS + 16 <= 124
+            && FULL_FRAME.is_multiple_of(8)
+    );
 
     /// The blocked kernel for a full h part (MAX_BLOCK_H_CHUNKS chunks: the paper's models,
-    /// H = 128) and any x part up to MAX_BLOCK_X_CHUNKS: the activations are copied once to
-    /// the stack, x ending where h starts, and read at fixed offsets from sp, so r1 holds the
-    /// output pointer and each chunk's six loads pipeline (19 cycles per 16 MACs). Chunk
-    /// position p reads its activations at `sp + 8·p` and its weights at `r0 + 16·p`, with r0
-    /// = the block's weights − 16·(MAX_BLOCK_X_CHUNKS − x chunks); the x part is entered at
-    /// its first chunk (a computed jump, the only one besides none for the h part).
+    /// H = 128) and any x part up to MAX_BLOCK_X_CHUNKS, laid out for the STM32F4's flash: the
+    /// whole block loop (about 0.9 KiB) stays in the ART accelerator's 1 KiB instruction cache
+    /// after the first block, instead of streaming a 2.5 KiB straight-line body from flash at
+    /// 16 bytes per 6 cycles for each of the 128 blocks. The activations are copied once to the
+    /// stack, x ending where h starts, h placed so that the address 4 bytes before its end is a
+    /// multiple of 256. Per block: the x part, unrolled and entered at its first chunk (a
+    /// computed jump), reads chunk position p at `r1 + 8p + 4` and `r0 + 16p + 4`; then the h
+    /// loop, 4 passes of 8 chunks whose last loads advance r1 and r0 (writeback), until r1's
+    /// low byte is 0; 19 cycles per chunk of 16 MACs, 16-bit loads.
     ///
     /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_blocks`] checks,
     /// with exactly MAX_BLOCK_H_CHUNKS h chunks.
     #[inline(never)]
     unsafe fn lstm_block_kernel_full(p: &BlockParams) {
-        // Registers in the chunks: r0 the block's weights (offset as above), r1 output
-        // pointer, r2-r7 accumulators, r8-r9 activation words, r10-r12 and lr weight words.
-        // Stack: [sp] the activations (FULL_ACT_WORDS words), then out_end, the x entry, the
-        // bytes per block.
+        // Registers in the block loop: r0 weights, r1 activations (each 4 bytes before the
+        // current position 0), r2-r3 activation words, r4-r7 weight words, r8-r12 and lr the
+        // accumulators. Stack: [sp] out_end − 4, [sp+4] the x entry, [sp+8] out − 4 (the block's
+        // last store writes it back), [sp+12] 16 · (x chunks missing from MAX_BLOCK_X_CHUNKS),
+        // then the activation area.
         // SAFETY: see the caller; every memory access is inside the buffers `p` describes or
-        // the kernel's own stack frame (x's copy starts at chunk position MAX − x chunks ≥ 0).
+        // the kernel's own stack frame (x's copy starts at h − 8 · x chunks ≥ the area's start;
+        // h's end is at most the frame's end).
         unsafe {
             core::arch::asm!(
                 "push {{r4-r11, lr}}",
                 "sub sp, sp, #{frame}",
+                // The output pointers 4 bytes early: the block's last store writes back.
                 "ldr r1, [r0, #16]",
-                "str r1, [sp, #{end_at}]",
-                // x entry: the end of the unrolled x chunks - x chunks · 72 (ADR on a word
-                // boundary, as in `lstm_kernel`); bytes per block 16 · (x + h chunks).
+                "subs r1, r1, #4",
+                "str r1, [sp, #0]",
+                "ldr r1, [r0, #12]",
+                "subs r1, r1, #4",
+                "str r1, [sp, #8]",
+                // x entry: the end of the unrolled x chunks − 4 − x chunks · 60 (the last chunk
+                // is 64 bytes), or with no x part the stub that moves the bases on (ADRs on a
+                // word boundary, as in `lstm_kernel`).
                 "ldr r3, [r0, #20]",
                 "movs r4, #{chunk_bytes}",
                 ".p2align 2",
                 "adr.w r5, 12f",
+                "subs r5, r5, #4",
                 "mls r5, r3, r4, r5",
+                "cbnz r3, 17f",
+                ".p2align 2",
+                "adr.w r5, 15f",
+                "17:",
                 "orr r5, r5, #1",
-                "str r5, [sp, #{entry_at}]",
-                "lsls r4, r3, #4",
-                "add.w r4, r4, #{h_bytes}",
-                "str r4, [sp, #{adv_at}]",
-                // Copy x (2 words per chunk) to chunk position MAX - x chunks (r2), h after it.
-                "rsb r2, r3, #{xmax}",
-                "add.w r12, sp, r2, lsl #3",
+                "str r5, [sp, #4]",
+                "rsb r4, r3, #{xmax}",
+                "lsls r4, r4, #4",
+                "str r4, [sp, #12]",
+                // h's start (r12): the lowest address ≥ the area + 8 · MAX x chunks that is 4
+                // more than a multiple of 256.
+                "addw r12, sp, #({act_at} + 8 * {xmax} + 251)",
+                "bic r12, r12, #255",
+                "add.w r12, r12, #4",
+                // Copy x (2 words per chunk) to end at h's start, then h after it.
+                "sub.w r2, r12, r3, lsl #3",
                 "ldr r1, [r0, #4]",
                 "cbz r3, 13f",
                 "14:",
                 "ldmia r1!, {{r4, r5}}",
-                "stmia r12!, {{r4, r5}}",
+                "stmia r2!, {{r4, r5}}",
                 "subs r3, r3, #1",
                 "bne 14b",
                 "13:",
-                "add.w r12, sp, #{h_at}",
+                "mov r2, r12",
                 "ldr r1, [r0, #8]",
                 "movs r3, #{hpasses}",
                 "10:",
                 "ldmia r1!, {{r4-r11}}",
-                "stmia r12!, {{r4-r11}}",
+                "stmia r2!, {{r4-r11}}",
                 "subs r3, r3, #1",
                 "bne 10b",
-                "ldr r1, [r0, #12]",
+                // r0: the first block's weights − the missing x chunks' 16 bytes each − 4; r1:
+                // the x area (position 0) − 4.
+                "ldr r3, [sp, #12]",
                 "ldr r0, [r0, #0]",
-                "sub.w r0, r0, r2, lsl #4",
-                FULL_CLEAR!(),
-                "ldr pc, [sp, #{entry_at}]",
-                // Block loop: x part (entered at its first chunk, accumulators clear). Every
-                // instruction of the loop is 32-bit and word-aligned (none straddles a line).
-                ".p2align 2",
+                "subs r0, r0, r3",
+                "subs r0, r0, #4",
+                "subw r1, r12, #(8 * {xmax} + 4)",
+                FULL_CLEAR!("r2"),
+                "ldr pc, [sp, #4]",
+                // No x part: the bases as the x part's last chunk leaves them.
+                "15:",
+                "adds r0, #(16 * {xmax})",
+                "adds r1, #(8 * {xmax})",
+                "b 12f",
+                // The block loop, on a 1 KiB boundary: it fits the ART's 64 lines of 16 bytes
+                // (0.9 KiB; the bench's per-function stall shows it), and no instruction of it sits at the end of a 1 KiB page
+                // (where QEMU ends a translation block and the cycle model charges a refill).
+                // x part: entered at its first chunk, accumulators clear; its last chunk moves
+                // r0 and r1 on to the h part.
+                ".p2align 10",
                 "11:",
                 ".set slg_p, 0",
-                ".rept {xmax}",
+                ".rept {xmax} - 1",
                 FULL_CHUNK!(),
                 ".endr",
+                FULL_CHUNK_XLAST!(),
                 "12:",
-                ".if (12b - 11b) != {chunk_bytes} * {xmax}",
-                ".error \"dsp full-h kernel: unrolled x chunk is not 72 bytes\"",
+                ".if (12b - 11b) != {chunk_bytes} * {xmax} + 4",
+                ".error \"dsp full-h kernel: an x chunk is not 60 bytes\"",
                 ".endif",
-                BLOCK_EXTRACT!(),
-                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0].
-                "str.w r4, [r1]",
-                "str.w r2, [r1, #8]",
-                "str.w r7, [r1, #16]",
-                "str.w r5, [r1, #24]",
-                // h part: the first chunk starts r4 and r7; r4 (stored) is 0 for UMULL.
-                "mov.w r4, #0",
-                "umull r2, r3, r4, r4",
-                "umull r5, r6, r4, r4",
-                FULL_CHUNK!(first),
-                ".rept {hchunks} - 1",
+                FULL_EXTRACT!(),
+                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0] (r2 = out − 4).
+                "ldr r2, [sp, #8]",
+                "str.w r10, [r2, #4]",
+                "str.w r8, [r2, #12]",
+                "str.w lr, [r2, #20]",
+                "str.w r11, [r2, #28]",
+                FULL_CLEAR!("r3"),
+                // h loop: passes of 8 chunks until r1's low byte is 0 (after the 4th), on a
+                // word boundary (its 32-bit instructions stay word-aligned).
+                ".p2align 2",
+                "20:",
+                ".set slg_p, 0",
+                ".rept {pass} - 1",
                 FULL_CHUNK!(),
                 ".endr",
-                BLOCK_EXTRACT!(),
-                "str.w r4, [r1, #4]",
-                "str.w r2, [r1, #12]",
-                "str.w r7, [r1, #20]",
-                "str.w r5, [r1, #28]",
-                "ldr.w r8, [sp, #{end_at}]",
-                "ldr.w r9, [sp, #{adv_at}]",
-                "adds.w r1, r1, #32",
-                "add.w r0, r0, r9",
-                FULL_CLEAR!(),
-                "cmp.w r1, r8",
-                "beq.w 9f",
-                "ldr pc, [sp, #{entry_at}]",
+                FULL_CHUNK_LAST!(),
+                "lsls r2, r1, #24",
+                "bne.w 20b",
+                FULL_EXTRACT!(),
+                "ldr r2, [sp, #8]",
+                "ldr r3, [sp, #0]",
+                "ldr r4, [sp, #12]",
+                "str.w r10, [r2, #8]",
+                "str.w r8, [r2, #16]",
+                "str.w lr, [r2, #24]",
+                "str.w r11, [r2, #32]!",
+                "str r2, [sp, #8]",
+                // Back to the x bases: r0 is 4 bytes before the next block, r1 at h's end − 4.
+                "subs r0, r0, r4",
+                "subw r1, r1, #({h_bytes} + 8 * {xmax})",
+                FULL_CLEAR!("r4"),
+                "cmp r2, r3",
+                "beq.n 9f",
+                "ldr pc, [sp, #4]",
                 "9:",
                 "add sp, sp, #{frame}",
                 "pop {{r4-r11, lr}}",
-                frame = const 4 * FULL_ACT_WORDS + 16,
-                end_at = const 4 * FULL_ACT_WORDS,
-                entry_at = const 4 * FULL_ACT_WORDS + 4,
-                adv_at = const 4 * FULL_ACT_WORDS + 8,
-                h_at = const 8 * super::MAX_BLOCK_X_CHUNKS,
-                h_bytes = const 16 * super::MAX_BLOCK_H_CHUNKS,
+                frame = const FULL_FRAME,
+                act_at = const FULL_ACT_AT,
+                h_bytes = const FULL_H_BYTES,
                 xmax = const super::MAX_BLOCK_X_CHUNKS,
                 hpasses = const super::MAX_BLOCK_H_CHUNKS / 4,
-                hchunks = const super::MAX_BLOCK_H_CHUNKS,
+                pass = const FULL_PASS_CHUNKS,
                 chunk_bytes = const FULL_CHUNK_BYTES,
                 inout("r0") p as *const BlockParams => _,
                 out("r1") _,

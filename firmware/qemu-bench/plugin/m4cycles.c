@@ -6,13 +6,17 @@
  * Spans: the guest stores (any value) to MARKER + 8*id to open span `id` (0..MAX_SPANS-1) and
  * to MARKER + 8*id + 4 to close it. A span accumulates over every open/close pair: executions,
  * instructions, base cycles and flash stall cycles. At exit one line per used span:
- *   m4cycles: span ID n N insns I base_cycles B flash_stall S est_cycles B+S
+ *   m4cycles: span ID n N insns I base_cycles B flash_stall S fetch_stall F est_cycles B+S
+ * (F, part of S, is the stall of sequential instruction fetch: the fetch-bandwidth term; B+S-F
+ * is the estimate with sequential fetch free, fetchbw=0's figure)
  * and, with prof=FILE, one line per instruction address executed while span `profspan` was
  * open: `0xADDR insns cycles stall` (map addresses to functions with arm-none-eabi-nm).
  *
  * Args: addr= (MARKER, default 0x20300000), ws= (flash wait states, 5), refill= (pipeline refill
  * cycles of a taken branch, 2), dlines= / ilines= (ART data / instruction cache lines, 8 / 64),
- * flo= / fhi= (flash address range, default [0, 0x20000000)), prof=FILE, profspan=ID.
+ * flo= / fhi= (flash address range, default [0, 0x20000000)), fetchbw= (1: sequential fetch from
+ * flash has a bandwidth, the default; 0: sequential line changes are free), prof=FILE,
+ * profspan=ID.
  *
  * Debian's qemu-system-arm 7.2 ships no qemu-plugin.h: the few API v1 declarations used are
  * written out below. Build: gcc -O2 -shared -fPIC -o libm4cycles.so m4cycles.c */
@@ -90,14 +94,18 @@ static bool lru_access(lru_t *c, uint64_t line) {
 
 #define MAX_SPANS 64
 typedef struct {
-    uint64_t n, insns, base, stall; /* totals over closed executions */
-    uint64_t o_insns, o_base, o_stall; /* counters when it was opened */
+    uint64_t n, insns, base, stall, fstall; /* totals over closed executions */
+    uint64_t o_insns, o_base, o_stall, o_fstall; /* counters when it was opened */
     bool open, used;
 } span_t;
 
 static lru_t dc, ic;
-static uint64_t marker = 0x20300000, flo = 0, fhi = 0x20000000, ws = 5, refill = 2;
-static uint64_t insns, base, stall, next_pc = ~0ull, last_iline = ~0ull;
+static uint64_t marker = 0x20300000, flo = 0, fhi = 0x20000000, ws = 5, refill = 2, fetchbw = 1;
+/* Totals: instructions, base cycles, all flash stalls, of which sequential-fetch stalls. */
+static uint64_t insns, base, stall, fstall, next_pc = ~0ull, last_iline = ~0ull;
+/* The prefetch buffer: the line it fetches next (the one after the line last delivered to the
+ * core) and the cycle at which that line arrives from flash. */
+static uint64_t pref_line = ~0ull, pref_at;
 static uint8_t prev_kind;
 static insn_info *cur; /* the instruction executing now (data stalls are charged to it) */
 static span_t spans[MAX_SPANS];
@@ -174,23 +182,47 @@ static void classify(const char *d, insn_info *ii) {
     else if (starts(m, "vdiv") || starts(m, "vsqrt")) ii->base = 14;
 }
 
+/* The fetch of a new instruction line (`line`, by the instruction starting at cycle `now`):
+ * the stall until it can be decoded. A hit in the ART's instruction cache costs nothing. A miss
+ * in flash that is not the next sequential line is a new flash read: ws cycles. The next
+ * sequential line is what the prefetch buffer has been reading since the previous line was
+ * delivered; a flash read takes ws + 1 cycles (one line of 16 bytes per 6 cycles at 5 wait
+ * states), so the core waits for whatever of that is left (fetchbw=1), or not at all
+ * (fetchbw=0: sequential fetch free, the model's first version). Either way the prefetch
+ * buffer then starts on the line after this one. *fetch_part gets the bandwidth part. */
+static uint64_t fetch_line(uint64_t line, uint64_t pc, uint64_t now, uint64_t *fetch_part) {
+    bool sequential = line == last_iline + 1;
+    bool hit = lru_access(&ic, line);
+    uint64_t s = 0;
+    *fetch_part = 0;
+    if (!hit && pc >= flo && pc < fhi) {
+        if (!sequential) {
+            s = ws;
+        } else if (fetchbw && line == pref_line && pref_at > now) {
+            s = pref_at - now;
+            *fetch_part = s;
+        }
+    }
+    pref_line = line + 1;
+    pref_at = now + s + ws + 1;
+    last_iline = line;
+    return s;
+}
+
 static void on_exec(unsigned int vcpu, void *ud) {
     insn_info *ii = ud;
-    uint64_t c = ii->base, s = 0;
+    uint64_t c = ii->base, s = 0, f = 0;
     if (ii->kind == K_LS1 && prev_kind == K_LS1) c -= 1;
     if (next_pc != ~0ull && ii->pc != next_pc) c += refill;
     prev_kind = ii->kind;
     next_pc = ii->pc + ii->size;
     uint64_t line = ii->pc >> 4;
-    if (line != last_iline) {
-        bool seq = (line == last_iline + 1);
-        bool hit = lru_access(&ic, line);
-        if (!hit && !seq && ii->pc >= flo && ii->pc < fhi) s = ws;
-        last_iline = line;
-    }
+    /* This instruction starts when everything before it is done. */
+    if (line != last_iline) s = fetch_line(line, ii->pc, base + stall, &f);
     insns++;
     base += c;
     stall += s;
+    fstall += f;
     cur = ii;
     if (prof_span >= 0 && spans[prof_span].open) {
         ii->prof_insns++;
@@ -207,12 +239,14 @@ static void on_mem(unsigned int vcpu, qemu_plugin_meminfo_t info, uint64_t va, v
                 sp->o_insns = insns;
                 sp->o_base = base;
                 sp->o_stall = stall;
+                sp->o_fstall = fstall;
                 sp->open = sp->used = true;
             } else if (sp->open) {
                 sp->n++;
                 sp->insns += insns - sp->o_insns;
                 sp->base += base - sp->o_base;
                 sp->stall += stall - sp->o_stall;
+                sp->fstall += fstall - sp->o_fstall;
                 sp->open = false;
             }
         }
@@ -248,13 +282,16 @@ static void on_exit_cb(qemu_plugin_id_t id, void *p) {
         span_t *s = &spans[i];
         if (!s->used) continue;
         snprintf(b, sizeof b,
-                 "m4cycles: span %d n %llu insns %llu base_cycles %llu flash_stall %llu est_cycles %llu\n", i,
-                 (unsigned long long)s->n, (unsigned long long)s->insns, (unsigned long long)s->base,
-                 (unsigned long long)s->stall, (unsigned long long)(s->base + s->stall));
+                 "m4cycles: span %d n %llu insns %llu base_cycles %llu flash_stall %llu fetch_stall %llu "
+                 "est_cycles %llu\n",
+                 i, (unsigned long long)s->n, (unsigned long long)s->insns, (unsigned long long)s->base,
+                 (unsigned long long)s->stall, (unsigned long long)s->fstall,
+                 (unsigned long long)(s->base + s->stall));
         qemu_plugin_outs(b);
     }
-    snprintf(b, sizeof b, "m4cycles: total insns %llu base_cycles %llu flash_stall %llu\n",
-             (unsigned long long)insns, (unsigned long long)base, (unsigned long long)stall);
+    snprintf(b, sizeof b, "m4cycles: total insns %llu base_cycles %llu flash_stall %llu fetch_stall %llu\n",
+             (unsigned long long)insns, (unsigned long long)base, (unsigned long long)stall,
+             (unsigned long long)fstall);
     qemu_plugin_outs(b);
     if (prof_file) {
         FILE *f = fopen(prof_file, "w");
@@ -281,6 +318,7 @@ QEMU_PLUGIN_EXPORT int qemu_plugin_install(qemu_plugin_id_t id, const qemu_info_
         else if (!strncmp(argv[i], "refill=", 7)) refill = strtoull(argv[i] + 7, NULL, 0);
         else if (!strncmp(argv[i], "dlines=", 7)) dl = atoi(argv[i] + 7);
         else if (!strncmp(argv[i], "ilines=", 7)) il = atoi(argv[i] + 7);
+        else if (!strncmp(argv[i], "fetchbw=", 8)) fetchbw = strtoull(argv[i] + 8, NULL, 0);
         else if (!strncmp(argv[i], "prof=", 5)) prof_file = strdup(argv[i] + 5);
         else if (!strncmp(argv[i], "profspan=", 9)) prof_span = atoi(argv[i] + 9);
         else {

@@ -29,7 +29,7 @@ static MISMATCHES: AtomicU32 = AtomicU32::new(0);
 /// inputs and outputs behind `core::hint::black_box` so the compiler cannot hoist or drop the
 /// work.
 pub fn bench<F: FnMut()>(name: &str, iterations: u32, f: F) -> (u64, u32) {
-    let span = NEXT_SPAN.fetch_add(1, Ordering::Relaxed);
+    let span = next_span();
     insns::span_marker(span, false);
     let total = insns::measure(iterations, f);
     insns::span_marker(span, true);
@@ -43,6 +43,11 @@ pub fn bench<F: FnMut()>(name: &str, iterations: u32, f: F) -> (u64, u32) {
         span
     );
     (per_iter, span)
+}
+
+/// A fresh span id of the cycle plugin, for a measurement outside [`bench`].
+pub fn next_span() -> u32 {
+    NEXT_SPAN.fetch_add(1, Ordering::Relaxed)
 }
 
 /// Records and prints whether `got == want`. A mismatch makes [`finish`] exit with 1.

@@ -7,10 +7,14 @@
 //! of the LSTM state must equal what the host core produced (`expected.bin`, pinned by the
 //! host test `golden_vectors`). Then it counts instructions per channel step and per part.
 //!
-//! Modules: [`insns`] (SysTick instruction counter) and [`harness`] (output, checks, exit codes).
+//! Last, the cycle model's fetch-bandwidth probe ([`fetch`]).
+//!
+//! Modules: [`insns`] (SysTick instruction counter), [`harness`] (output, checks, exit codes) and
+//! [`fetch`] (the fetch-bandwidth probe).
 #![no_std]
 #![no_main]
 
+mod fetch;
 mod harness;
 mod insns;
 
@@ -253,7 +257,7 @@ struct BlockRows([i8; BLOCK_CHECK_ROWS * BLOCK_MAX_ROW + 4]);
 /// packed by `pack_lstm_blocks` against the row-major portable kernel on the original weights
 /// (`lstm_gate_sums_portable`, an independent path: other layout, other activation order), for
 /// every x part of 0..=MAX_BLOCK_X_CHUNKS chunks and h part of 0..=MAX_BLOCK_H_CHUNKS chunks, on
-/// random and extreme data; the full h part (the straight-line full-h kernel, every x entry)
+/// random and extreme data; the full h part (the full-h kernel's block loop, every x entry)
 /// with 8 more random rounds; plus a misaligned view (the portable fallback).
 fn check_block_kernel() {
     let mut rng = Rng(0xb10c_0001);
@@ -799,5 +803,6 @@ fn main() -> ! {
         macs,
         lstm_macs
     );
+    fetch::probe();
     harness::finish()
 }

@@ -69,7 +69,7 @@ pub struct Args {
     #[arg(long)]
     pub allow_bad_model: bool,
     /// When a frame's flags reach the controller: `firmware` = as the firmware runs (modelled
-    /// inference of a 16-channel frame, 11.0 ms, + 0.61 ms on the wire); `deadline` = the bound
+    /// inference of a 16-channel frame, 11.3 ms, + 0.61 ms on the wire); `deadline` = the bound
     /// the protocol guarantees (one period + 0.61 ms).
     #[arg(long, value_enum, default_value_t = LatencyArg::Firmware)]
     pub latency: LatencyArg,
