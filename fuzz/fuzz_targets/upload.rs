@@ -118,8 +118,12 @@ fuzz_target!(|data: &[u8]| {
             crc: CRC32.checksum(blob),
         };
         put(&mut s1, tail, &t(a, seq).to_bytes());
+        let after = upload::next_seq(upload::select(
+            &SimFlash::new(&mut s0.clone(), &mut s1.clone()),
+            &HAND,
+        ));
         put(&mut s0, 0, second);
-        put(&mut s0, tail, &t(second, seq.wrapping_add(1)).to_bytes());
+        put(&mut s0, tail, &t(second, after).to_bytes());
         expected = fingerprint(second);
     }
     let mut ram = Box::new(ModelRam::<RAM>::new());

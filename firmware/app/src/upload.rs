@@ -171,12 +171,28 @@ pub fn slot_state(flash: &impl Flash, profile: &Profile, slot: u8) -> Option<Act
     Some(Active { slot, seq, len })
 }
 
-/// Whether sequence number `a` is newer than `b` in serial-number arithmetic (RFC 1982): `a` is
-/// ahead of `b` by less than half the number space, so `0` is newer than `u32::MAX`. The two
-/// slots' numbers differ by one (each commit numbers the active slot's + 1), far inside it.
+/// Whether sequence number `a` is newer than `b`. 0 is the factory blob's (a slot without a
+/// trailer: the blob flashed with the firmware, or an upload into that slot that was never
+/// committed), older than every committed number; committed numbers skip 0 and compare in
+/// serial-number arithmetic (RFC 1982): `a` is ahead of `b` by less than half the number space,
+/// so 1 is newer than `u32::MAX`. The two slots' numbers differ by one (each commit numbers the
+/// active slot's + 1), far inside it.
 pub fn newer(a: u32, b: u32) -> bool {
-    // The difference as a signed count: positive while `a` is less than 2^31 ahead.
-    (a.wrapping_sub(b) as i32) > 0
+    match (a, b) {
+        (0, _) => false,
+        (_, 0) => true,
+        // The difference as a signed count: positive while `a` is less than 2^31 ahead.
+        _ => (a.wrapping_sub(b) as i32) > 0,
+    }
+}
+
+/// The sequence number a commit gives the new slot: the active one's + 1, skipping 0 (the
+/// factory blob's) at the wrap.
+pub fn next_seq(active: Option<Active>) -> u32 {
+    match active.map_or(0, |a| a.seq).wrapping_add(1) {
+        0 => 1,
+        s => s,
+    }
 }
 
 /// The slot to boot from: the valid one with the newer sequence number ([`newer`]; `None`: no
@@ -417,7 +433,7 @@ impl Uploader {
                 }
             });
         }
-        let seq = self.active.map_or(0, |a| a.seq).wrapping_add(1);
+        let seq = next_seq(self.active);
         let trailer = Trailer {
             seq,
             len: job.size,

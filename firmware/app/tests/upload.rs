@@ -278,6 +278,15 @@ fn upload_cmds(blob: &[u8]) -> Vec<Command> {
 /// Power lost at operation `cut` of an upload of `blob` over `board` (booted as the firmware
 /// boots, released); returns the number of flash operations done and what the reboot runs.
 fn cut_upload(board: &mut Board, blob: &[u8], cut: usize) -> (usize, Option<Active>, Option<u32>) {
+    cut_commands(board, &upload_cmds(blob), cut)
+}
+
+/// Power lost at operation `cut` of `cmds` (see [`cut_upload`]).
+fn cut_commands(
+    board: &mut Board,
+    cmds: &[Command],
+    cut: usize,
+) -> (usize, Option<Active>, Option<u32>) {
     let mut flash = board.flash();
     let mut ram = Box::new(Ram::new());
     let (active, mut app) = app_over(&flash, HAND, &mut ram);
@@ -285,7 +294,7 @@ fn cut_upload(board: &mut Board, blob: &[u8], cut: usize) -> (usize, Option<Acti
     released(&mut app);
     let mut up = Uploader::new(active);
     flash.cut_at = Some(cut);
-    for c in upload_cmds(blob) {
+    for &c in cmds {
         if flash.cut() {
             break; // the board is off
         }
@@ -325,11 +334,36 @@ fn upload_power_cut_at_every_write_boots_a_valid_model() {
         s0: b.s0.clone(),
         s1: b.s1.clone(),
     };
-    for (start, old, new) in [(&factory, (1, 0), (0, 1)), (&two, (0, 1), (1, 2))] {
+    // Two trailer slots past 2^31 (the factory slot at 0x8000_0000, slot 0 at 0x8000_0001):
+    // the next upload goes into the factory slot, and until its trailer is written that slot
+    // has none, as a factory blob: it must still lose (found by the `upload` fuzz target).
+    let mut high = copy(&two);
+    let t = upload::Trailer {
+        seq: 0x8000_0000,
+        len: old_blob.len() as u32,
+        crc: crc(&old_blob),
+    };
+    let tail = (SLOT_WORDS * 4 - TRAILER_LEN) / 4;
+    for (w, b) in high.s1[tail..].iter_mut().zip(t.to_bytes().chunks_exact(4)) {
+        *w = u32::from_ne_bytes(b.try_into().unwrap());
+    }
+    let (_, booted, _) = cut_upload(&mut high, &old_blob, usize::MAX);
+    assert_eq!(booted.map(|a| (a.slot, a.seq)), Some((0, 0x8000_0001)));
+    for (start, old, new) in [
+        (&factory, (1, 0), (0, 1)),
+        (&two, (0, 1), (1, 2)),
+        (&high, (0, 0x8000_0001), (1, 0x8000_0002)),
+    ] {
         let (ops, booted, running) = cut_upload(&mut copy(start), &new_blob, usize::MAX);
         assert_eq!(ops, total);
         assert_eq!(booted.map(|a| (a.slot, a.seq)), Some(new));
         assert_eq!(running, Some(new_fp));
+        // Every byte written, no commit (the power went between the last chunk and it).
+        let cmds = upload_cmds(&new_blob);
+        let (_, booted, running) =
+            cut_commands(&mut copy(start), &cmds[..cmds.len() - 1], usize::MAX);
+        assert_eq!(booted.map(|a| (a.slot, a.seq)), Some(old), "uncommitted");
+        assert_eq!(running, Some(old_fp), "uncommitted");
         for cut in 0..total {
             // A cut at any operation, the trailer write (the last) included, leaves the old slot
             // the newest valid one: the old model boots.
@@ -973,7 +1007,7 @@ fn armed_refuses_begin_and_commit_and_nothing_restarts_in_a_grasp() {
 }
 
 /// Sequence numbers wrap: with the active slot at `u32::MAX`, the next commit numbers the new
-/// slot 0, says so, and a reboot picks it (then 1, and so on).
+/// slot 1 (0 is the factory blob's), says so, and a reboot picks it (then 2, and so on).
 #[test]
 fn slot_choice_survives_the_sequence_wrap() {
     // The factory slot given a trailer at u32::MAX − 1: the next upload gets u32::MAX.
@@ -1005,7 +1039,7 @@ fn slot_choice_survives_the_sequence_wrap() {
         reboot(&flash, HAND).0.map(|a| (a.slot, a.seq)),
         Some((0, u32::MAX))
     );
-    let mut expected = [(1, 0), (0, 1), (1, 2)].into_iter();
+    let mut expected = [(1, 1), (0, 2), (1, 3)].into_iter();
     for blob in [FACTORY, NEW, FACTORY] {
         let (want_slot, want_seq) = expected.next().unwrap();
         let mut ram = Box::new(Ram::new());
@@ -1024,6 +1058,8 @@ fn slot_choice_survives_the_sequence_wrap() {
         );
         assert_eq!(running, Some(fingerprint(blob)));
     }
-    assert!(upload::newer(0, u32::MAX) && !upload::newer(u32::MAX, 0));
+    assert!(upload::newer(1, u32::MAX) && !upload::newer(u32::MAX, 1));
     assert!(upload::newer(1, 0) && !upload::newer(5, 5));
+    // The factory blob (0, no trailer) is older than every committed number, past 2^31 too.
+    assert!(upload::newer(0x8000_0001, 0) && !upload::newer(0, 0x8000_0001));
 }
