@@ -31,9 +31,10 @@ rm -f "$c"/app/rec_*.hex
 
 # Upload sessions (fuzz_targets/upload.rs: start byte, then ops): release, begin of the 40 Hz
 # blob, every chunk, commit; the same with a power cut and a second upload; from two slots at
-# sequence u32::MAX − 1; a grasp start mid-upload (commit refused), release, commit.
+# sequence u32::MAX − 1; a grasp start mid-upload (commit refused), release, commit; from two
+# slots past 2^31, every chunk into the factory slot and no commit (a finding, now fixed).
 for s in 000b000106 000b00010608 000b00010d03060b00010608 01feffffff0b00010608 \
-    000b00010a06080b08 000b0002060800000408; do
+    000b00010a06080b08 000b0002060800000408 2b3d923dffff0c000026; do
   echo "$s" | xxd -r -p > "$c/upload/session_$s.bin"
 done
 
