@@ -28,8 +28,9 @@ use slipguard_core::quantize::quantize;
 
 static GOLDEN: &[u8] = include_bytes!("../../firmware/core/tests/fixtures/bench/model.bin");
 
-/// Slot size of the simulated flash: the small model and room for an upload of up to 8 KiB.
-const SLOT_WORDS: usize = 8 * 1024 / 4;
+/// Slot size of the simulated flash: one F405 sector, so that the upload begin of the protocol
+/// examples (an 80 444-byte blob) is accepted and its chunks are written.
+const SLOT_WORDS: usize = 128 * 1024 / 4;
 
 /// The golden blob's settings with hidden size 8 (PyTorch-style init, seed 1), quantized once:
 /// the same code paths as the H=128 golden model at a fraction of the cost per input.
