@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")"
 root=..
 c=corpus
-mkdir -p "$c"/{blob,protocol,app,recording,eagle,import_safetensors,import_onnx,import_keras}
+mkdir -p "$c"/{blob,protocol,app,upload,recording,eagle,import_safetensors,import_onnx,import_keras}
 
 # Blobs: the golden v1 blob (hex), the bench blob, the shipped models.
 xxd -r -p "$root/firmware/core/tests/fixtures/golden_blob_v1.hex" > "$c/blob/golden_v1.bin"
@@ -16,13 +16,27 @@ for b in "$root"/models/*/*.bin; do cp "$b" "$c/blob/$(basename "$b")"; done
 
 # Wire frames: the examples table of docs/protocol.md. Protocol seeds: mode byte 0 (deframer)
 # + the wire bytes; mode byte 1 (payload) + the COBS-decoded payload is left to the fuzzer.
+# App seeds: profile byte 0, then each frame as a record `3, length, wire bytes without the
+# delimiter` (the target fixes the CRC up after decoding, so mutated commands stay valid).
 i=0
 grep -o '`04[0-9a-f]*00`' "$root/docs/protocol.md" | tr -d '`' | while read -r hex; do
   i=$((i + 1))
   { printf '\x00'; echo "$hex" | xxd -r -p; } > "$c/protocol/doc_$i.bin"
-  { printf '\x00'; echo "$hex" | xxd -r -p; } > "$c/app/doc_$i.bin"
+  body=${hex%00}
+  printf '%02x%02x%s' 3 $((${#body} / 2)) "$body" > "$c/app/rec_$i.hex"
+  { printf '\x00'; xxd -r -p "$c/app/rec_$i.hex"; } > "$c/app/doc_$i.bin"
 done
-cat "$c"/protocol/doc_*.bin > "$c/app/all_commands.bin"
+{ printf '\x00'; cat "$c"/app/rec_*.hex | xxd -r -p; } > "$c/app/all_commands.bin"
+rm -f "$c"/app/rec_*.hex
+
+# Upload sessions (fuzz_targets/upload.rs: start byte, then ops): release, begin of the 40 Hz
+# blob, every chunk, commit; the same with a power cut and a second upload; from two slots at
+# sequence u32::MAX − 1; a grasp start mid-upload (commit refused), release, commit; from two
+# slots past 2^31, every chunk into the factory slot and no commit (a finding, now fixed).
+for s in 000b000106 000b00010608 000b00010d03060b00010608 01feffffff0b00010608 \
+    000b00010a06080b08 000b0002060800000408 2b3d923dffff0c000026; do
+  echo "$s" | xxd -r -p > "$c/upload/session_$s.bin"
+done
 
 # Readers: a few real trials and the recordings of the tests.
 n=0
@@ -37,6 +51,10 @@ for r in $(find "$root/host-tools" "$root/tests" "$root/data" -name '*.csv' -siz
 done
 printf '# slipguard-recording v1\n# rate_hz: 16.7\n# unit: mN\ntime_s,c0,c1\n0,1,2\n0.0598802,3,4\n' \
   > "$c/recording/minimal.csv"
+# What the monitor records (the first 150 frames of each), made with
+#   slipguard replay data/eagle-shoal/trials/T --samples --script marks --release-at 137 --out T.bin
+#   slipguard monitor --capture T.bin --record T.csv
+cp seeds/recording/*.csv "$c/recording/"
 
 # Importers.
 f="$root/model-export/tests/fixtures"

@@ -8,7 +8,7 @@ cd "$(dirname "${BASH_SOURCE[0]}")/../fuzz"
 secs="${1:-20}"
 shift || true
 targets=("$@")
-[ ${#targets[@]} -eq 0 ] && targets=(blob protocol app recording eagle import_safetensors import_onnx import_keras)
+[ ${#targets[@]} -eq 0 ] && targets=(blob protocol app upload recording eagle import_safetensors import_onnx import_keras)
 
 rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
 command -v cargo-fuzz >/dev/null 2>&1 || cargo install cargo-fuzz --locked

@@ -267,28 +267,24 @@ async fn tx_task(mut tx: UartTx<'static, embassy_stm32::mode::Async>) {
     }
 }
 
-/// Loads the model into RAM: validates `blob` (the active model slot; CRC, version, sizes) and
-/// copies it into `ram` as the image the register-blocked LSTM kernel reads. Returns the bytes
-/// the application should run: the RAM image, or `blob` itself if it is bad (the application
-/// then reports why) or larger than the copy (it runs from flash, slower). After an upload the
-/// board restarts, so boot calls this once with the new active slot.
+/// Loads the model into RAM ([`upload::load`], the boot path the host tests run): validates
+/// `blob` (the active model slot) and copies it into `ram` as the image the register-blocked
+/// LSTM kernel reads. Returns the bytes the application runs: the RAM image, or `blob` itself if
+/// it is bad (the application then reports why) or larger than the copy (it runs from flash,
+/// slower). After an upload the board restarts, so boot calls this once with the new slot.
 fn load_model_into_ram<'a>(ram: &'a mut ModelRam, blob: &'a [u8]) -> &'a [u8] {
     let capacity = ram.capacity();
-    match ram.load(blob) {
-        Ok(image) => {
-            info!(
-                "model copied to RAM at {:#010x}: {} of {} bytes",
-                image.as_ptr() as usize,
-                image.len(),
-                capacity
-            );
-            image
-        }
-        Err(e) => {
-            warn!("model stays in flash: {}", e);
-            blob
-        }
+    let (bytes, copied) = upload::load(ram, blob);
+    match copied {
+        Ok(()) => info!(
+            "model copied to RAM at {:#010x}: {} of {} bytes",
+            bytes.as_ptr() as usize,
+            bytes.len(),
+            capacity
+        ),
+        Err(e) => warn!("model stays in flash: {}", e),
     }
+    bytes
 }
 
 /// Queues a frame for the UART; a full queue counts the frame as skipped.
@@ -453,7 +449,10 @@ async fn main(spawner: Spawner) {
                 wdg.pet(); // a slot erase may have stalled the CPU for up to 2 s
                 if let Some(a) = reload {
                     // Model changed: restart so that the boot path selects slot `a`, copies it
-                    // and sets the ADC rate and deadlines from it. The reply goes out first.
+                    // and sets the ADC rate and deadlines from it. The reply goes out first;
+                    // nothing else is handled meanwhile (`upload::receive` stopped at the
+                    // commit, and this task waits), so flagging stays off: the commit was
+                    // refused while armed, and no grasp start is handled before the reset.
                     info!(
                         "model uploaded into slot {} (sequence {}): restarting",
                         a.slot, a.seq

@@ -84,9 +84,23 @@ struct UploadArgs {
     /// Baud rate (≥ 1).
     #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..))]
     baud: u32,
-    /// Send release first (the board refuses an upload while flagging is armed).
+    /// Send release first (the board refuses an upload while flagging is armed); only when
+    /// the hand is open.
     #[arg(long)]
     release: bool,
+    /// Seconds to wait while the board refuses begin or commit because flagging is armed (a
+    /// grasp in progress), asking again every 0.5 s; 0: give up at once.
+    #[arg(long, default_value_t = 10.0, value_parser = wait_seconds)]
+    wait_armed: f64,
+}
+
+/// clap parser: a wait in seconds, 0 ≤ x ≤ 3600.
+fn wait_seconds(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=3600.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} s is not in the allowed range 0 ≤ x ≤ 3600 s")),
+        Err(_) => Err(format!("`{s}` is not a number of seconds")),
+    }
 }
 
 /// clap parser: a share, 0 ≤ x ≤ 1.
@@ -561,11 +575,17 @@ fn run_upload(a: UploadArgs) -> ExitCode {
     let run = || -> Result<slipguard_export::upload::Uploaded, UploadError> {
         let blob = std::fs::read(&a.blob)
             .map_err(|e| UploadError::Blob(format!("reading {}: {e}", a.blob.display())))?;
+        // The file first: a bad blob never opens (or resets) the port.
+        slipguard_export::upload::check_blob(&blob).map_err(|e| match e {
+            UploadError::Blob(m) => UploadError::Blob(format!("{}: {m}", a.blob.display())),
+            e => e,
+        })?;
         let port = open_port(&a.port, a.baud)?;
         let mut link = Link::new(port);
         let bar = indicatif::ProgressBar::new(blob.len() as u64);
         let opt = Options {
             release: a.release,
+            wait_armed: std::time::Duration::from_secs_f64(a.wait_armed),
             ..Options::default()
         };
         let r = link.upload(&blob, &opt, |done, _| bar.set_position(done as u64));
@@ -582,12 +602,13 @@ fn run_upload(a: UploadArgs) -> ExitCode {
                 .map(|&b| b as char)
                 .collect();
             println!(
-                "upload: OK, model '{name}' {:#010x} at {:.1} Hz active in slot {} (sequence {}), {} frames resent",
+                "upload: OK, model '{name}' {:#010x} at {:.1} Hz active in slot {} (sequence {}) after the board's restart, {} frames resent, {:.1} s waited for release",
                 u.info.model_crc,
                 u.info.sample_rate_mhz as f64 / 1000.0,
                 u.slot,
                 u.seq,
-                u.resent
+                u.resent,
+                u.waited_armed.as_secs_f64()
             );
             ExitCode::SUCCESS
         }

@@ -1,14 +1,20 @@
 //! `slipguard-export upload`: sends a model blob to the firmware over its serial link
-//! (docs/protocol.md, "Model upload"): begin, chunks of 128 bytes with their CRC, commit, then an
-//! info request to confirm the new model runs. Frames the device streams meanwhile (flags,
-//! samples) are skipped; a lost or damaged frame is resent, an out-of-order reply resumes at the
-//! offset the device names. Every refusal becomes an [`UploadError::Refused`] whose message says
-//! what to fix.
+//! (docs/protocol.md, "Model upload"). The file is checked first, before the port is opened
+//! ([`check_blob`]); then an info request, and the board's own model check for its sensor
+//! profile ([`check_board`]) before anything is written; begin, chunks of 128 bytes with their
+//! CRC, commit; then info requests until the restarted board runs the new model. Frames the
+//! device streams meanwhile (flags, samples) are skipped; a lost or damaged frame is resent, an
+//! out-of-order reply resumes at the offset the device names. While flagging is armed (a grasp)
+//! the board refuses begin and commit: the upload waits for the release ([`Options::wait_armed`])
+//! and never sends one itself once the upload has begun. Every refusal becomes an error whose
+//! message says what happened and what to do.
 
 use std::io::{self, Read, Write};
 use std::time::{Duration, Instant};
 
-use slipguard_core::blob::{CRC32, ModelBlob};
+use slipguard_app::app::{SystemFault, check_stored};
+use slipguard_app::profile::Profile;
+use slipguard_core::blob::{CRC32, IMAGE_MAGIC, ModelBlob};
 use slipguard_core::protocol::{
     self, Chunk, Command, Deframer, Frame, Info, MAX_CHUNK, MAX_WIRE, Message, ReplyBody,
     ReplyStatus, msg_type, upload_code,
@@ -43,16 +49,27 @@ pub enum UploadError {
         /// The CRC of the blob sent.
         sent: u32,
     },
+    /// The board's sensor profile does not run this model (its own check, made here before
+    /// anything is written).
+    WrongBoard(String),
+    /// Flagging stayed armed (a grasp) for the whole wait.
+    Armed {
+        /// Whether the blob was already stored (the commit was refused) or nothing was written
+        /// (begin was refused).
+        stored: bool,
+        /// How long the upload waited for the release.
+        waited: Duration,
+    },
 }
 
 impl UploadError {
     /// Process exit code: 12 invalid blob (as `export`/`inspect`), 3 I/O or no reply, 14 the
-    /// device refused, 13 the model did not become active.
+    /// device refused (or would: another profile; or armed), 13 the model did not become active.
     pub fn exit_code(&self) -> u8 {
         match self {
             Self::Blob(_) => 12,
             Self::Io(_) | Self::NoReply { .. } => 3,
-            Self::Refused { .. } => 14,
+            Self::Refused { .. } | Self::WrongBoard(_) | Self::Armed { .. } => 14,
             Self::NotActive { .. } => 13,
         }
     }
@@ -80,7 +97,24 @@ impl std::fmt::Display for UploadError {
             } => f.write_str(&refusal_hint(*code, *detail, *value)),
             Self::NotActive { running, sent } => write!(
                 f,
-                "the device runs model CRC {running:#010x}, not the uploaded {sent:#010x}: upload again and watch for fault frames"
+                "the commit was accepted, but the device still runs model CRC {running:#010x}, not the uploaded {sent:#010x}: it restarts onto the new model after the commit (never while armed); check for fault frames, power-cycle it, or upload again"
+            ),
+            Self::WrongBoard(m) => write!(f, "nothing written: {m}"),
+            Self::Armed {
+                stored: false,
+                waited,
+            } => write!(
+                f,
+                "nothing written: flagging stayed armed for {:.1} s (a grasp in progress, or no release since the board started): release the hand, or pass --release when it is open, and run the upload again (--wait-armed waits longer)",
+                waited.as_secs_f64()
+            ),
+            Self::Armed {
+                stored: true,
+                waited,
+            } => write!(
+                f,
+                "the blob is on the board but not committed: flagging was armed (a grasp started during the upload) and stayed so for {:.1} s; the old model still runs. Run the upload again once the hand is released (--wait-armed waits longer)",
+                waited.as_secs_f64()
             ),
         }
     }
@@ -99,7 +133,7 @@ pub fn refusal_hint(code: u8, detail: u8, value: u32) -> String {
     use upload_code::*;
     match code {
         NOT_STARTED => "device refused: no upload in progress (it was restarted or a commit was refused): run the upload again".into(),
-        ARMED => "device refused: flagging is armed: send release first (add --release) while the hand is open".into(),
+        ARMED => "device refused: flagging is armed (a grasp): send release first (add --release) while the hand is open, or wait for the release".into(),
         WRONG_SIZE => format!(
             "device refused: blob size is 0, not a multiple of 4, or over the slot's {value} bytes: export a smaller model"
         ),
@@ -143,6 +177,8 @@ pub struct Uploaded {
     pub info: Info,
     /// Chunks resent (lost or damaged frames).
     pub resent: u32,
+    /// Time spent waiting for flagging to go off (begin or commit refused as armed).
+    pub waited_armed: Duration,
 }
 
 /// Upload settings.
@@ -156,6 +192,11 @@ pub struct Options {
     pub erase_timeout: Duration,
     /// Resends of one command before giving up.
     pub retries: u32,
+    /// How long to keep asking while the board refuses begin or commit as armed (a grasp in
+    /// progress), every `timeout`; zero: give up at the first refusal.
+    pub wait_armed: Duration,
+    /// How long the board may take to restart onto the new model after the commit.
+    pub restart_timeout: Duration,
 }
 
 impl Default for Options {
@@ -165,7 +206,66 @@ impl Default for Options {
             timeout: Duration::from_millis(500),
             erase_timeout: Duration::from_secs(5),
             retries: 5,
+            wait_armed: Duration::from_secs(10),
+            restart_timeout: Duration::from_secs(5),
         }
+    }
+}
+
+/// Checks a file before anything is sent (before the port is opened): a blob that parses (CRC,
+/// version, sizes), not a RAM image, a whole number of 4-byte words. Returns its fingerprint
+/// (its own CRC, what info reports as `model_crc`).
+pub fn check_blob(blob: &[u8]) -> Result<u32, UploadError> {
+    let aligned = slipguard_core::blob::AlignedBlob::new(blob);
+    let parsed =
+        ModelBlob::parse(aligned.as_bytes()).map_err(|e| UploadError::Blob(e.to_string()))?;
+    if blob.get(..4) == Some(&IMAGE_MAGIC[..]) {
+        return Err(UploadError::Blob(
+            "this is a RAM image (magic SGMI), which the board makes from a blob in its RAM; upload the blob (SGMB) it was made from".into(),
+        ));
+    }
+    if !blob.len().is_multiple_of(4) {
+        return Err(UploadError::Blob(format!(
+            "{} bytes is not a whole number of 4-byte words",
+            blob.len()
+        )));
+    }
+    Ok(parsed.crc)
+}
+
+/// The board's own model check ([`check_stored`]) for the sensor profile its info reports, so
+/// that a model of the wrong rate or unit is refused before anything is written; a profile this
+/// tool does not know is left to the board.
+pub fn check_board(blob: &[u8], info: &Info) -> Result<(), UploadError> {
+    let Some(profile) = [Profile::HAND, Profile::SUCTION]
+        .into_iter()
+        .find(|p| p.id as u8 == info.profile)
+    else {
+        return Ok(());
+    };
+    let aligned = slipguard_core::blob::AlignedBlob::new(blob);
+    match check_stored(&profile, aligned.as_bytes()) {
+        Ok(_) => Ok(()),
+        Err(SystemFault::RateMismatch(r)) => {
+            let rates: Vec<String> = profile
+                .rates_mhz
+                .iter()
+                .map(|&x| format!("{:.1} Hz", x as f64 / 1000.0))
+                .collect();
+            Err(UploadError::WrongBoard(format!(
+                "the model runs at {:.1} Hz, the board's {} profile runs {}: train and export at one of those rates",
+                r as f64 / 1000.0,
+                profile.name,
+                rates.join(" or ")
+            )))
+        }
+        Err(SystemFault::UnitMismatch) => Err(UploadError::WrongBoard(format!(
+            "the board's {} profile delivers {}, the model takes the other unit: export with --input-unit {}",
+            profile.name,
+            profile.unit.name(),
+            profile.unit.name()
+        ))),
+        Err(SystemFault::BadModel(e)) => Err(UploadError::Blob(e.to_string())),
     }
 }
 
@@ -297,6 +397,47 @@ impl<P: Read + Write> Link<P> {
         }
     }
 
+    /// Sends `c` (an upload command) until it is answered, and while the board refuses it as
+    /// armed, again every `timeout` until `opt.wait_armed` is spent (`waited` grows by the time
+    /// spent). Returns (code, detail, slot, value).
+    fn upload_call(
+        &mut self,
+        c: Command,
+        what: &'static str,
+        timeout: Duration,
+        opt: &Options,
+        resent: &mut u32,
+        waited: &mut Duration,
+    ) -> Result<(u8, u8, u8, u32), UploadError> {
+        let mut armed_since: Option<Instant> = None;
+        loop {
+            let r = match self.call(c, what, timeout, opt.retries, resent)? {
+                (
+                    _,
+                    ReplyBody::Upload {
+                        code,
+                        detail,
+                        slot,
+                        value,
+                        ..
+                    },
+                ) => (code, detail, slot, value),
+                _ => return Err(UploadError::NoReply { what }),
+            };
+            if r.0 != upload_code::ARMED {
+                *waited += armed_since.map_or(Duration::ZERO, |t| t.elapsed());
+                return Ok(r);
+            }
+            let since = *armed_since.get_or_insert_with(Instant::now);
+            let left = opt.wait_armed.saturating_sub(since.elapsed());
+            if left.is_zero() {
+                *waited += since.elapsed();
+                return Ok(r);
+            }
+            std::thread::sleep(opt.timeout.min(left));
+        }
+    }
+
     /// Uploads `blob`; `progress` gets (bytes acknowledged, total).
     pub fn upload(
         &mut self,
@@ -304,11 +445,9 @@ impl<P: Read + Write> Link<P> {
         opt: &Options,
         mut progress: impl FnMut(usize, usize),
     ) -> Result<Uploaded, UploadError> {
-        let aligned = slipguard_core::blob::AlignedBlob::new(blob);
-        let parsed =
-            ModelBlob::parse(aligned.as_bytes()).map_err(|e| UploadError::Blob(e.to_string()))?;
-        let fingerprint = parsed.crc;
+        let fingerprint = check_blob(blob)?;
         let mut resent = 0;
+        let mut waited = Duration::ZERO;
         if opt.release {
             self.call(
                 Command::Release,
@@ -318,46 +457,49 @@ impl<P: Read + Write> Link<P> {
                 &mut resent,
             )?;
         }
-        let upload_reply = |r: (ReplyStatus, ReplyBody)| match r.1 {
-            ReplyBody::Upload {
-                code,
-                detail,
-                slot,
-                value,
-                ..
-            } => Ok((code, detail, slot, value)),
-            _ => Err(UploadError::NoReply { what: "upload" }),
-        };
+        // The board's profile runs this model? Checked before anything is written.
+        check_board(blob, &self.info(opt.timeout)?)?;
         let begin = Command::UploadBegin {
             size: blob.len() as u32,
             crc: CRC32.checksum(blob),
         };
-        let (code, detail, _, value) = upload_reply(self.call(
+        let (code, detail, _, value) = self.upload_call(
             begin,
             "upload begin",
             opt.erase_timeout,
-            opt.retries,
+            opt,
             &mut resent,
-        )?)?;
-        if code != upload_code::OK {
-            return Err(UploadError::Refused {
-                code,
-                detail,
-                value,
-            });
+            &mut waited,
+        )?;
+        match code {
+            upload_code::OK => {}
+            upload_code::ARMED => {
+                return Err(UploadError::Armed {
+                    stored: false,
+                    waited,
+                });
+            }
+            _ => {
+                return Err(UploadError::Refused {
+                    code,
+                    detail,
+                    value,
+                });
+            }
         }
         let mut offset = 0usize;
         let mut tries = 0;
         while offset < blob.len() {
             let end = (offset + MAX_CHUNK).min(blob.len());
             let chunk = Command::UploadChunk(Chunk::new(offset as u32, &blob[offset..end]));
-            let (code, detail, _, value) = upload_reply(self.call(
+            let (code, detail, _, value) = self.upload_call(
                 chunk,
                 "upload chunk",
                 opt.timeout,
-                opt.retries,
+                opt,
                 &mut resent,
-            )?)?;
+                &mut waited,
+            )?;
             match code {
                 upload_code::OK => {
                     offset = value as usize;
@@ -380,18 +522,36 @@ impl<P: Read + Write> Link<P> {
                 }
             }
         }
-        let (code, detail, slot, value) = upload_reply(self.call(
+        let (code, detail, slot, value) = self.upload_call(
             Command::UploadCommit,
             "upload commit",
             opt.erase_timeout,
-            opt.retries,
+            opt,
             &mut resent,
-        )?)?;
-        let info = self.info(opt.timeout)?;
-        // A commit resent after its reply was lost finds no upload in progress: the info says
-        // whether the first one took.
-        let took = code == upload_code::NOT_STARTED && info.model_crc == fingerprint;
-        if code != upload_code::OK && !took {
+            &mut waited,
+        )?;
+        match code {
+            upload_code::OK => {}
+            upload_code::ARMED => {
+                return Err(UploadError::Armed {
+                    stored: true,
+                    waited,
+                });
+            }
+            // A commit resent after its reply was lost finds no upload in progress on the
+            // restarted board: the info says whether the first one took.
+            upload_code::NOT_STARTED => {}
+            _ => {
+                return Err(UploadError::Refused {
+                    code,
+                    detail,
+                    value,
+                });
+            }
+        }
+        // The board restarts onto the new model: ask until it runs it.
+        let info = self.await_model(fingerprint, opt)?;
+        if code != upload_code::OK && info.model_crc != fingerprint {
             return Err(UploadError::Refused {
                 code,
                 detail,
@@ -409,6 +569,29 @@ impl<P: Read + Write> Link<P> {
             seq: value,
             info,
             resent,
+            waited_armed: waited,
         })
+    }
+
+    /// Info requests until the device runs the model with `fingerprint` (it restarts after a
+    /// commit; requests sent meanwhile go unanswered) or `opt.restart_timeout` is spent; the
+    /// last info answered.
+    fn await_model(&mut self, fingerprint: u32, opt: &Options) -> Result<Info, UploadError> {
+        let start = Instant::now();
+        let mut last = None;
+        loop {
+            match self.info(opt.timeout) {
+                Ok(i) if i.model_ok == 1 && i.model_crc == fingerprint => return Ok(i),
+                Ok(i) => last = Some(i),
+                Err(UploadError::NoReply { .. }) => {}
+                Err(e) => return Err(e),
+            }
+            if start.elapsed() >= opt.restart_timeout {
+                return last.ok_or(UploadError::NoReply {
+                    what: "info after the commit (the board did not come back)",
+                });
+            }
+            std::thread::sleep(opt.timeout / 4);
+        }
     }
 }

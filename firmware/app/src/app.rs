@@ -30,7 +30,7 @@ use crate::MAX_CHANNELS;
 use crate::frontend::FrameInput;
 use crate::profile::Profile;
 use crate::schedule::frame_timestamp_us;
-use slipguard_core::blob::{BlobError, InputUnit};
+use slipguard_core::blob::{BlobError, IMAGE_MAGIC, InputUnit};
 use slipguard_core::decision::{
     ContactConfig, DecisionConfig, DecisionState, HandConfig, HandOutput,
 };
@@ -132,6 +132,19 @@ pub fn check_model<'m>(profile: &Profile, blob: &'m [u8]) -> Result<Model<'m>, S
     } else {
         Ok(m)
     }
+}
+
+/// The one check of a blob stored in a model slot: the commit of an upload and the slot choice
+/// at boot both make it ([`crate::upload::slot_state`]), so a commit accepts exactly what the
+/// boot path runs. The blob must be a blob (`SGMB`: a RAM image, `SGMI`, exists only in RAM and
+/// is not loaded again) and pass [`check_model`]; the boot path then runs its RAM copy, which
+/// [`slipguard_core::model_ram::ModelRam::load`] guarantees parses as the same model, or, when
+/// the copy does not fit, the blob where it lies ([`crate::upload::load`]).
+pub fn check_stored<'m>(profile: &Profile, blob: &'m [u8]) -> Result<Model<'m>, SystemFault> {
+    if blob.get(..4) == Some(&IMAGE_MAGIC[..]) {
+        return Err(SystemFault::BadModel(BlobError::BadMagic));
+    }
+    check_model(profile, blob)
 }
 
 impl<'m> App<'m> {

@@ -15,21 +15,32 @@
 //! ```
 //!
 //! A slot is valid when its trailer is intact and its blob has the trailer's CRC and passes the
-//! app's model check ([`check_model`]); slot [`FACTORY_SLOT`] with an erased trailer holds the
-//! blob flashed with the firmware (sequence 0). At boot [`select`] picks the valid slot with the
-//! highest sequence number.
+//! stored-model check ([`check_stored`], the one check commit and boot share); slot
+//! [`FACTORY_SLOT`] with an erased trailer holds the blob flashed with the firmware (sequence 0).
+//! At boot [`select`] picks the valid slot with the newer sequence number (serial-number
+//! arithmetic, so the choice survives the wrap after `u32::MAX`), and [`load`] gives the bytes
+//! the app runs (the blob's RAM copy); [`boot`] is the whole path, as the host tests and fuzzers
+//! run it.
 //!
 //! An upload ([`Uploader`]): begin erases the slot that is not active; chunks are written in
 //! order, each checked against its CRC before and after the write; commit checks the whole
-//! blob's CRC and the model (parse, rate and unit against the profile), then writes the trailer.
-//! Until that last write the active slot is untouched and the new one invalid, so a power loss
-//! at any point boots the previous model; after it, the new one. A refused chunk leaves the
-//! upload where it was (resend it, or resume at the offset the reply names); a new begin
-//! restarts from scratch.
+//! blob's CRC and the model ([`check_stored`]: parse, rate and unit against the profile), then
+//! writes the trailer and reads back that [`select`] now picks the new slot. Until that last
+//! write the active slot is untouched and the new one invalid, so a power loss at any point
+//! boots the previous model; after it, the new one. A refused chunk leaves the upload where it
+//! was (resend it, or resume at the offset the reply names); a new begin restarts from scratch.
+//!
+//! While flagging is armed (a grasp may be in progress) begin and commit are refused with
+//! `ARMED`: begin would stall the CPU for the sector erase, commit would restart the board.
+//! Chunks are stored (a chunk's write stalls the CPU well under a millisecond), and the upload
+//! stays complete, so the host commits again after release. After an accepted commit the board
+//! handles nothing more ([`receive`] stops there): it sends the reply and restarts onto the new
+//! model, never during a grasp.
 
-use crate::app::{App, SystemFault, check_model};
+use crate::app::{App, SystemFault, check_stored};
 use crate::profile::Profile;
 use slipguard_core::blob::CRC32;
+use slipguard_core::model_ram::{LoadError, ModelRam};
 use slipguard_core::protocol::{
     Chunk, Command, DecodeError, Error, Frame, Message, ReplyBody, ReplyStatus, msg_type,
     upload_code,
@@ -156,16 +167,72 @@ pub fn slot_state(flash: &impl Flash, profile: &Profile, slot: u8) -> Option<Act
         (t.seq, t.len as usize)
     };
     let blob = bytes.get(..len).filter(|_| len <= tail)?;
-    check_model(profile, blob).ok()?;
+    check_stored(profile, blob).ok()?;
     Some(Active { slot, seq, len })
 }
 
-/// The slot to boot from: the valid one with the highest sequence number (`None`: no valid
-/// model in either slot; the app then runs in a system fault and an upload can fix it).
+/// Whether sequence number `a` is newer than `b`. 0 is the factory blob's (a slot without a
+/// trailer: the blob flashed with the firmware, or an upload into that slot that was never
+/// committed), older than every committed number; committed numbers skip 0 and compare in
+/// serial-number arithmetic (RFC 1982): `a` is ahead of `b` by less than half the number space,
+/// so 1 is newer than `u32::MAX`. The two slots' numbers differ by one (each commit numbers the
+/// active slot's + 1), far inside it.
+pub fn newer(a: u32, b: u32) -> bool {
+    match (a, b) {
+        (0, _) => false,
+        (_, 0) => true,
+        // The difference as a signed count: positive while `a` is less than 2^31 ahead.
+        _ => (a.wrapping_sub(b) as i32) > 0,
+    }
+}
+
+/// The sequence number a commit gives the new slot: the active one's + 1, skipping 0 (the
+/// factory blob's) at the wrap.
+pub fn next_seq(active: Option<Active>) -> u32 {
+    match active.map_or(0, |a| a.seq).wrapping_add(1) {
+        0 => 1,
+        s => s,
+    }
+}
+
+/// The slot to boot from: the valid one with the newer sequence number ([`newer`]; `None`: no
+/// valid model in either slot; the app then runs in a system fault and an upload can fix it).
 pub fn select(flash: &impl Flash, profile: &Profile) -> Option<Active> {
     (0..SLOTS)
         .filter_map(|s| slot_state(flash, profile, s))
-        .max_by_key(|a| a.seq)
+        .reduce(|a, b| if newer(b.seq, a.seq) { b } else { a })
+}
+
+/// The bytes the app runs for the active slot's `blob` (empty without one): its RAM copy
+/// ([`ModelRam::load`]), or `blob` itself where it lies when the copy is refused (a blob larger
+/// than the buffer runs from flash; a bad one is reported by the app). The error says why, for
+/// the boot log.
+pub fn load<'a, const N: usize>(
+    ram: &'a mut ModelRam<N>,
+    blob: &'a [u8],
+) -> (&'a [u8], Result<(), LoadError>) {
+    match ram.load(blob) {
+        Ok(copy) => (copy, Ok(())),
+        Err(e) => (blob, Err(e)),
+    }
+}
+
+/// The whole boot path as the board runs it: [`select`], the slot's [`blob`], [`load`] into
+/// `ram`, and the app over the result. For the host (the board layer does the same steps with
+/// its flash's `'static` bytes).
+pub fn boot<'a, const N: usize>(
+    flash: &'a impl Flash,
+    profile: Profile,
+    ram: &'a mut ModelRam<N>,
+) -> (Option<Active>, App<'a>) {
+    let active = select(flash, &profile);
+    let (bytes, _) = load(ram, blob(flash, active));
+    (active, App::new(profile, bytes))
+}
+
+/// Whether flagging is on with a model running: what refuses an upload's begin and commit.
+fn flagging(app: &App<'_>) -> bool {
+    app.armed() && app.model().is_ok()
 }
 
 /// The blob bytes of the active slot (empty without one), for [`App::new`] or [`App::reload`].
@@ -181,8 +248,10 @@ pub fn blob(flash: &impl Flash, active: Option<Active>) -> &[u8] {
 pub enum Outcome {
     /// Nothing beyond sending the reply.
     None,
-    /// A new model is active in this slot: send the reply, then reload the app from it
-    /// ([`App::reload`] with [`blob`]; the firmware copies the weights to RAM again).
+    /// A new model is active in this slot: send the reply, then restart onto it (the firmware
+    /// resets and boots it; a board layer without a reset reloads the app in place,
+    /// [`App::reload`] over [`load`] of [`blob`]). Flagging is off: the commit was refused
+    /// otherwise.
     Reload(Active),
 }
 
@@ -238,12 +307,12 @@ impl Uploader {
         else {
             return (app.handle(received), Outcome::None);
         };
-        let armed = app.armed() && app.model().is_ok();
+        let armed = flagging(app);
         let profile = *app.profile();
         let result = match cmd {
             Command::UploadBegin { size, crc } => self.begin(flash, armed, size, crc),
             Command::UploadChunk(c) => self.chunk(flash, &c),
-            Command::UploadCommit => self.commit(flash, &profile),
+            Command::UploadCommit => self.commit(flash, &profile, armed),
             _ => return (app.handle(received), Outcome::None),
         };
         let (code, detail, value, outcome) = match result {
@@ -325,16 +394,22 @@ impl Uploader {
     }
 
     /// Commit: whole-blob CRC, model check, then the trailer. Value: the new sequence number.
+    /// Refused while `armed`, the upload kept (value: the bytes stored), to be committed after
+    /// release.
     fn commit<F: Flash>(
         &mut self,
         flash: &mut F,
         profile: &Profile,
+        armed: bool,
     ) -> Result<(u32, Outcome), Refusal> {
         let Some(job) = self.job else {
             return Err((upload_code::NOT_STARTED, 0, 0));
         };
         if job.next != job.size {
             return Err((upload_code::INCOMPLETE, 0, job.next));
+        }
+        if armed {
+            return Err((upload_code::ARMED, 0, job.next));
         }
         // From here on the upload is over, accepted or not: a refused blob needs a new begin.
         self.job = None;
@@ -344,7 +419,7 @@ impl Uploader {
         if computed != job.crc {
             return Err((upload_code::BLOB_CRC, 0, computed));
         }
-        if let Err(e) = check_model(profile, blob) {
+        if let Err(e) = check_stored(profile, blob) {
             return Err(match e {
                 SystemFault::BadModel(b) => {
                     let (detail, value) = b.wire_detail();
@@ -358,7 +433,7 @@ impl Uploader {
                 }
             });
         }
-        let seq = self.active.map_or(0, |a| a.seq).wrapping_add(1);
+        let seq = next_seq(self.active);
         let trailer = Trailer {
             seq,
             len: job.size,
@@ -368,8 +443,8 @@ impl Uploader {
         flash
             .write(job.slot, at, &trailer.to_bytes())
             .map_err(|_| (upload_code::FLASH, 2, 0))?;
-        // The new slot must now be the one a reboot would choose.
-        let new = slot_state(flash, profile, job.slot).filter(|a| a.seq == seq);
+        // The new slot must now be the one a reboot chooses: the reply says what boots.
+        let new = select(flash, profile).filter(|a| a.slot == job.slot && a.seq == seq);
         let Some(new) = new else {
             return Err((upload_code::FLASH, 3, 0));
         };
@@ -380,7 +455,8 @@ impl Uploader {
 
 /// Feeds received bytes through the deframer, the uploader and the app (as
 /// [`crate::replay::receive`], with uploads); every reply goes to `sink`. Returns the slot to
-/// reload from when a commit made a new model active (the board sends the replies first).
+/// restart onto when a commit made a new model active (the board sends the replies first):
+/// the bytes after that commit are not handled (the board restarts; the host waits for it).
 pub fn receive<F: Flash>(
     up: &mut Uploader,
     app: &mut App<'_>,
@@ -389,17 +465,16 @@ pub fn receive<F: Flash>(
     bytes: &[u8],
     mut sink: impl FnMut(&Frame),
 ) -> Option<Active> {
-    let mut reload = None;
     for &b in bytes {
         if let Some(r) = deframer.push_decode(b) {
             let (reply, outcome) = up.handle(app, flash, r);
             sink(&reply);
             if let Outcome::Reload(a) = outcome {
-                reload = Some(a);
+                return Some(a);
             }
         }
     }
-    reload
+    None
 }
 
 /// Every upload command is a [`msg_type`] the uploader answers.

@@ -8,6 +8,7 @@ use slipguard_app::upload::{
     self, Active, FACTORY_SLOT, Flash, Outcome, SimFlash, TRAILER_LEN, Uploader,
 };
 use slipguard_core::blob::{AlignedBlob, CRC32};
+use slipguard_core::model_ram::ModelRam;
 use slipguard_core::protocol::{
     self, Chunk, Command, Deframer, Frame, MAX_CHUNK, MAX_WIRE, Message, P_NONE, ReplyBody,
     ReplyStatus, upload_code,
@@ -32,9 +33,13 @@ impl Board {
     /// Slot 0 erased, the factory blob in slot 1 without a trailer (as the firmware image
     /// flashes it).
     fn factory() -> Self {
+        Self::holding(FACTORY)
+    }
+    /// Slot 0 erased, `factory` in slot 1 without a trailer.
+    fn holding(factory: &[u8]) -> Self {
         let s0 = vec![u32::MAX; SLOT_WORDS];
         let mut s1 = vec![u32::MAX; SLOT_WORDS];
-        let b = AlignedBlob::new(FACTORY);
+        let b = AlignedBlob::new(factory);
         let words: &[u32] = bytemuck::cast_slice(b.as_bytes());
         s1[..words.len()].copy_from_slice(words);
         Self { s0, s1 }
@@ -46,6 +51,37 @@ impl Board {
 
 fn crc(b: &[u8]) -> u32 {
     CRC32.checksum(b)
+}
+
+/// A blob's fingerprint: its own CRC (the last 4 bytes of its header's total length), what
+/// info reports as `model_crc`.
+fn fingerprint(blob: &[u8]) -> u32 {
+    let total = u32::from_le_bytes(blob[8..12].try_into().unwrap()) as usize;
+    u32::from_le_bytes(blob[total - 4..total].try_into().unwrap())
+}
+
+type Ram = ModelRam<{ slipguard_core::model_ram::MODEL_RAM_BYTES }>;
+
+/// An app over the model the board boots (the chosen slot's RAM copy), leaving the flash free
+/// for the uploader (every blob here fits the RAM copy; `reboot` runs the board's own path).
+fn app_over<'r>(
+    flash: &impl Flash,
+    profile: Profile,
+    ram: &'r mut Ram,
+) -> (Option<Active>, App<'r>) {
+    let active = upload::select(flash, &profile);
+    let bytes: &'r [u8] = ram.load(upload::blob(flash, active)).unwrap_or(&[]);
+    (active, App::new(profile, bytes))
+}
+
+/// Reboots as the firmware does (`upload::boot`: slot choice, RAM copy, app over the copy) and
+/// returns the active slot and the fingerprint of the model the app runs (`None`: the app is
+/// in a model fault).
+fn reboot(flash: &impl Flash, profile: Profile) -> (Option<Active>, Option<u32>) {
+    let mut ram = Box::new(Ram::new());
+    let (active, app) = upload::boot(flash, profile, &mut ram);
+    let running = app.model().ok().map(|m| m.blob().crc);
+    (active, running)
 }
 
 /// (code, detail, slot, value, status) of an upload reply.
@@ -207,35 +243,62 @@ fn upload_replaces_the_model_and_the_next_boot_keeps_it() {
     );
 }
 
-/// Power lost at operation `cut` of an upload of `NEW` over a board in state `start`; returns
-/// what boots afterwards.
-fn cut_upload(start: &Board, cut: usize) -> (Board, Option<Active>, usize) {
-    let mut board = Board {
-        s0: start.s0.clone(),
-        s1: start.s1.clone(),
-    };
-    let mut flash = board.flash();
-    let active = upload::select(&flash, &HAND);
-    let ram = AlignedBlob::new(upload::blob(&flash, active));
-    let mut app = App::new(HAND, ram.as_bytes());
-    released(&mut app);
-    let mut up = Uploader::new(active);
-    flash.cut_at = Some(cut);
-    let cmds = std::iter::once(Command::UploadBegin {
-        size: NEW.len() as u32,
-        crc: crc(NEW),
+/// A small model with the bench model's settings (hidden 8, PyTorch-style init with `seed`) at
+/// `rate_mhz`: the power-cut tests upload it at every cut, so its few flash operations keep them
+/// fast.
+fn small(rate_mhz: u32, seed: u64) -> Vec<u8> {
+    use slipguard_core::float::FloatModel;
+    let golden = AlignedBlob::new(FACTORY);
+    let mut c = *slipguard_core::model::Model::from_bytes(golden.as_bytes())
+        .unwrap()
+        .config();
+    c.hidden = [8, 0];
+    c.sample_rate_mhz = rate_mhz;
+    let (bytes, _) =
+        slipguard_core::quantize::quantize(&FloatModel::init_like_pytorch(c, seed), &[], None)
+            .unwrap();
+    bytes
+}
+
+/// The commands of a whole upload of `blob`.
+fn upload_cmds(blob: &[u8]) -> Vec<Command> {
+    std::iter::once(Command::UploadBegin {
+        size: blob.len() as u32,
+        crc: crc(blob),
     })
     .chain(
-        NEW.chunks(MAX_CHUNK)
+        blob.chunks(MAX_CHUNK)
             .enumerate()
             .map(|(i, c)| Command::UploadChunk(Chunk::new((i * MAX_CHUNK) as u32, c))),
     )
-    .chain(std::iter::once(Command::UploadCommit));
-    for c in cmds {
+    .chain(std::iter::once(Command::UploadCommit))
+    .collect()
+}
+
+/// Power lost at operation `cut` of an upload of `blob` over `board` (booted as the firmware
+/// boots, released); returns the number of flash operations done and what the reboot runs.
+fn cut_upload(board: &mut Board, blob: &[u8], cut: usize) -> (usize, Option<Active>, Option<u32>) {
+    cut_commands(board, &upload_cmds(blob), cut)
+}
+
+/// Power lost at operation `cut` of `cmds` (see [`cut_upload`]).
+fn cut_commands(
+    board: &mut Board,
+    cmds: &[Command],
+    cut: usize,
+) -> (usize, Option<Active>, Option<u32>) {
+    let mut flash = board.flash();
+    let mut ram = Box::new(Ram::new());
+    let (active, mut app) = app_over(&flash, HAND, &mut ram);
+    assert!(app.model().is_ok());
+    released(&mut app);
+    let mut up = Uploader::new(active);
+    flash.cut_at = Some(cut);
+    for &c in cmds {
         if flash.cut() {
             break; // the board is off
         }
-        let _ = up.handle(
+        let (_, o) = up.handle(
             &mut app,
             &mut flash,
             Ok(Frame {
@@ -243,62 +306,93 @@ fn cut_upload(start: &Board, cut: usize) -> (Board, Option<Active>, usize) {
                 msg: Message::Command(c),
             }),
         );
+        if let Outcome::Reload(_) = o {
+            break; // it restarts
+        }
     }
     let ops = flash.ops;
-
-    let booted = upload::select(&board.flash(), &HAND);
-    (board, booted, ops)
+    let (booted, running) = reboot(&board.flash(), HAND);
+    (ops, booted, running)
 }
 
 /// From the factory state and from two uploaded slots: a cut at every erase and write boots
 /// the old model until the trailer is complete, the new one after; never nothing. After the
-/// reboot a new upload completes.
+/// reboot a fresh upload is cut at every operation again (nested cuts) and still boots the old
+/// or the new model, and a third upload completes and boots, after every pair of cuts.
 #[test]
 fn upload_power_cut_at_every_write_boots_a_valid_model() {
-    let factory = Board::factory();
-    // Two trailer slots: upload the factory model into slot 0 first (seq 1).
-    let mut two = Board::factory();
-    {
-        let mut flash = two.flash();
-        let active = upload::select(&flash, &HAND);
-        let ram = AlignedBlob::new(upload::blob(&flash, active));
-        let mut app = App::new(HAND, ram.as_bytes());
-        released(&mut app);
-        let mut up = Uploader::new(active);
-        let (_, o) = upload_all(&mut up, &mut app, &mut flash, FACTORY);
-        assert!(matches!(o, Outcome::Reload(a) if a.slot == 0 && a.seq == 1));
-    }
-    let chunks = NEW.len().div_ceil(MAX_CHUNK);
+    let (old_blob, new_blob) = (small(16_700, 1), small(40_000, 2));
+    let (old_fp, new_fp) = (fingerprint(&old_blob), fingerprint(&new_blob));
+    let factory = Board::holding(&old_blob);
+    // Two trailer slots: the old model uploaded into slot 0 first (seq 1).
+    let mut two = Board::holding(&old_blob);
+    let (_, booted, _) = cut_upload(&mut two, &old_blob, usize::MAX);
+    assert_eq!(booted.map(|a| (a.slot, a.seq)), Some((0, 1)));
     // Operations: 1 erase, one write per chunk, the trailer.
-    let total = 1 + chunks + 1;
-    for (start, old, new) in [(&factory, (1, 0), (0, 1)), (&two, (0, 1), (1, 2))] {
-        let (_, booted, ops) = cut_upload(start, usize::MAX);
+    let total = 1 + new_blob.len().div_ceil(MAX_CHUNK) + 1;
+    let copy = |b: &Board| Board {
+        s0: b.s0.clone(),
+        s1: b.s1.clone(),
+    };
+    // Two trailer slots past 2^31 (the factory slot at 0x8000_0000, slot 0 at 0x8000_0001):
+    // the next upload goes into the factory slot, and until its trailer is written that slot
+    // has none, as a factory blob: it must still lose (found by the `upload` fuzz target).
+    let mut high = copy(&two);
+    let t = upload::Trailer {
+        seq: 0x8000_0000,
+        len: old_blob.len() as u32,
+        crc: crc(&old_blob),
+    };
+    let tail = (SLOT_WORDS * 4 - TRAILER_LEN) / 4;
+    for (w, b) in high.s1[tail..].iter_mut().zip(t.to_bytes().chunks_exact(4)) {
+        *w = u32::from_ne_bytes(b.try_into().unwrap());
+    }
+    let (_, booted, _) = cut_upload(&mut high, &old_blob, usize::MAX);
+    assert_eq!(booted.map(|a| (a.slot, a.seq)), Some((0, 0x8000_0001)));
+    for (start, old, new) in [
+        (&factory, (1, 0), (0, 1)),
+        (&two, (0, 1), (1, 2)),
+        (&high, (0, 0x8000_0001), (1, 0x8000_0002)),
+    ] {
+        let (ops, booted, running) = cut_upload(&mut copy(start), &new_blob, usize::MAX);
         assert_eq!(ops, total);
         assert_eq!(booted.map(|a| (a.slot, a.seq)), Some(new));
+        assert_eq!(running, Some(new_fp));
+        // Every byte written, no commit (the power went between the last chunk and it).
+        let cmds = upload_cmds(&new_blob);
+        let (_, booted, running) =
+            cut_commands(&mut copy(start), &cmds[..cmds.len() - 1], usize::MAX);
+        assert_eq!(booted.map(|a| (a.slot, a.seq)), Some(old), "uncommitted");
+        assert_eq!(running, Some(old_fp), "uncommitted");
         for cut in 0..total {
-            let (mut board, booted, _) = cut_upload(start, cut);
-            let want = if cut < total - 1 { old } else { new };
-            // A cut during the trailer write (the last operation) leaves half a trailer: old.
-            let want = if cut == total - 1 { old } else { want };
-            let got = booted.map(|a| (a.slot, a.seq));
-            assert_eq!(got, Some(want), "cut at operation {cut}");
-            // The chosen slot's model runs.
-            let flash = board.flash();
-            let ram = AlignedBlob::new(upload::blob(&flash, booted));
-            assert!(App::new(HAND, ram.as_bytes()).model().is_ok(), "cut {cut}");
-            // After the reboot a fresh upload completes (every 64th cut, for time).
-            if cut % 64 == 0 {
-                let mut flash = board.flash();
-                let mut app = App::new(HAND, ram.as_bytes());
-                released(&mut app);
-                let mut up = Uploader::new(booted);
-                let (r, o) = upload_all(&mut up, &mut app, &mut flash, NEW);
+            // A cut at any operation, the trailer write (the last) included, leaves the old slot
+            // the newest valid one: the old model boots.
+            let mut board = copy(start);
+            let (_, booted, running) = cut_upload(&mut board, &new_blob, cut);
+            assert_eq!(
+                booted.map(|a| (a.slot, a.seq)),
+                Some(old),
+                "cut at operation {cut}"
+            );
+            assert_eq!(running, Some(old_fp), "cut {cut}");
+            for cut2 in (0..total).chain([usize::MAX]) {
+                let mut again = copy(&board);
+                let (_, booted, running) = cut_upload(&mut again, &new_blob, cut2);
+                let (want, fp) = if cut2 == usize::MAX {
+                    (new, new_fp)
+                } else {
+                    (old, old_fp)
+                };
                 assert_eq!(
-                    upload_reply(&r).0,
-                    upload_code::OK,
-                    "resume after cut {cut}"
+                    (booted.map(|a| (a.slot, a.seq)), running),
+                    (Some(want), Some(fp)),
+                    "cuts {cut}, {cut2}"
                 );
-                assert!(matches!(o, Outcome::Reload(a) if a.seq == want.1 + 1));
+                // Then a whole upload completes and boots.
+                let seq = booted.unwrap().seq;
+                let (_, booted, running) = cut_upload(&mut again, &old_blob, usize::MAX);
+                assert_eq!(booted.map(|a| a.seq), Some(seq + 1), "cuts {cut}, {cut2}");
+                assert_eq!(running, Some(old_fp), "cuts {cut}, {cut2}");
             }
         }
     }
@@ -735,4 +829,237 @@ fn upload_random_commands_and_cuts_never_lose_the_model() {
             "round {round}"
         );
     }
+}
+
+/// Every blob form the tools can produce, uploaded to a board of each profile and rebooted as
+/// the firmware boots (`upload::boot`): the shipped v1 blobs of each profile, their RAM images
+/// (`SGMI`, what `ModelRam::load` makes), images without their trailing CRC, truncated blobs and
+/// padded ones. A commit is accepted exactly when the boot path then runs that model; a refused
+/// one leaves the old model running. Which forms a profile accepts is the table below, not the
+/// code's own check.
+#[test]
+fn commit_accepts_exactly_what_the_boot_path_runs() {
+    const HAND_16: &[u8] = include_bytes!("../../../models/hand-force/hand-force.bin");
+    let models: [(&str, &[u8]); 4] = [
+        ("bench", FACTORY),
+        ("hand-force", HAND_16),
+        ("hand-force-40hz", NEW),
+        ("suction", SUCTION),
+    ];
+    for (profile, factory, runs) in [
+        (
+            HAND,
+            FACTORY,
+            &["bench", "hand-force", "hand-force-40hz"][..],
+        ),
+        (Profile::SUCTION, SUCTION, &["suction"][..]),
+    ] {
+        for (name, blob) in models {
+            let mut ram = Box::new(Ram::new());
+            let image = ram
+                .load(AlignedBlob::new(blob).as_bytes())
+                .unwrap()
+                .to_vec();
+            assert_eq!(&image[..4], b"SGMI");
+            let pad = |tail: &[u8]| [blob, tail].concat();
+            let half = (blob.len() / 2) & !3;
+            // (form, bytes, a model the profile runs)
+            let ok = runs.contains(&name);
+            let forms: Vec<(&str, Vec<u8>, bool)> = vec![
+                ("blob", blob.to_vec(), ok),
+                ("padded with 4 zero bytes", pad(&[0; 4]), ok),
+                ("padded with 64 erased bytes", pad(&[0xFF; 64]), ok),
+                (
+                    "padded with an image CRC",
+                    pad(&image[image.len() - 4..]),
+                    ok,
+                ),
+                ("RAM image", image.clone(), false),
+                ("RAM image padded", [&image[..], &[0; 8]].concat(), false),
+                (
+                    "RAM image without its CRC",
+                    image[..image.len() - 4].to_vec(),
+                    false,
+                ),
+                ("truncated by 4", blob[..blob.len() - 4].to_vec(), false),
+                ("truncated to half", blob[..half].to_vec(), false),
+            ];
+            for (form, bytes, want) in forms {
+                let what = format!("{name} {form} on the {} profile", profile.name);
+                let mut board = Board::holding(factory);
+                let mut flash = board.flash();
+                let (before, running) = reboot(&flash, profile);
+                assert_eq!(running, Some(fingerprint(factory)), "{what}: factory boot");
+                let mut ram = Box::new(Ram::new());
+                let (active, mut app) = app_over(&flash, profile, &mut ram);
+                released(&mut app);
+                let mut up = Uploader::new(active);
+                let (r, outcome) = upload_all(&mut up, &mut app, &mut flash, &bytes);
+                let (code, _, slot, seq, _) = upload_reply(&r);
+                let (after, running) = reboot(&flash, profile);
+                if code == upload_code::OK {
+                    assert!(want, "{what}: accepted");
+                    assert_eq!(
+                        outcome,
+                        Outcome::Reload(Active {
+                            slot,
+                            seq,
+                            len: bytes.len()
+                        })
+                    );
+                    assert_eq!(after.map(|a| (a.slot, a.seq)), Some((slot, seq)), "{what}");
+                    assert_eq!(running, Some(fingerprint(&bytes)), "{what}: runs");
+                } else {
+                    assert!(!want, "{what}: refused with code {code}");
+                    assert_eq!(outcome, Outcome::None);
+                    assert_eq!(after, before, "{what}: the old slot stays");
+                    assert_eq!(
+                        running,
+                        Some(fingerprint(factory)),
+                        "{what}: the old model runs"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// While flagging is armed (a grasp) begin and commit are refused with `ARMED` and the slots stay
+/// as they were; chunks are stored, and the commit goes through after release. An accepted
+/// commit ends the handling of the bytes it came with (the board restarts): a grasp start right
+/// behind it is not handled, so the restart never falls into a grasp.
+#[test]
+fn armed_refuses_begin_and_commit_and_nothing_restarts_in_a_grasp() {
+    let mut board = Board::factory();
+    let mut flash = board.flash();
+    let mut ram = Box::new(Ram::new());
+    let (active, mut app) = app_over(&flash, HAND, &mut ram);
+    let mut up = Uploader::new(active);
+    let begin = Command::UploadBegin {
+        size: NEW.len() as u32,
+        crc: crc(NEW),
+    };
+    // Armed after boot: begin refused before any erase.
+    assert_eq!(
+        code_of(send(&mut up, &mut app, &mut flash, 1, begin)),
+        (upload_code::ARMED, 0, 0)
+    );
+    assert_eq!(flash.ops, 0);
+    released(&mut app);
+    assert_eq!(
+        code_of(send(&mut up, &mut app, &mut flash, 2, begin)).0,
+        upload_code::OK
+    );
+    // A grasp starts mid-upload: the chunks are still stored.
+    let (r, _) = send(&mut up, &mut app, &mut flash, 3, Command::GraspStart);
+    assert!(matches!(r.msg, Message::Reply(x) if x.status == ReplyStatus::Ok));
+    assert!(app.armed());
+    for (i, c) in NEW.chunks(MAX_CHUNK).enumerate() {
+        let chunk = Command::UploadChunk(Chunk::new((i * MAX_CHUNK) as u32, c));
+        assert_eq!(
+            code_of(send(&mut up, &mut app, &mut flash, 4, chunk)).0,
+            upload_code::OK
+        );
+    }
+    // Commit while armed: refused, nothing written, the upload kept (value: bytes stored).
+    let ops = flash.ops;
+    assert_eq!(
+        code_of(send(
+            &mut up,
+            &mut app,
+            &mut flash,
+            5,
+            Command::UploadCommit
+        )),
+        (upload_code::ARMED, 0, NEW.len() as u32)
+    );
+    assert_eq!(flash.ops, ops);
+    assert_eq!(reboot(&flash, HAND).1, Some(fingerprint(FACTORY)));
+    // Release, then the commit and a grasp start in one burst of bytes: the commit goes
+    // through, the grasp start is left for the restarted board.
+    released(&mut app);
+    let mut bytes = Vec::new();
+    for (seq, c) in [(6, Command::UploadCommit), (7, Command::GraspStart)] {
+        let mut w = [0u8; MAX_WIRE];
+        let n = protocol::encode(
+            &Frame {
+                seq,
+                msg: Message::Command(c),
+            },
+            &mut w,
+        );
+        bytes.extend_from_slice(&w[..n]);
+    }
+    let mut replies = Vec::new();
+    let reload = upload::receive(
+        &mut up,
+        &mut app,
+        &mut flash,
+        &mut Deframer::new(),
+        &bytes,
+        |f| replies.push(*f),
+    );
+    assert_eq!(replies.len(), 1, "only the commit is answered");
+    assert_eq!(upload_reply(&replies[0]).0, upload_code::OK);
+    assert_eq!(reload.map(|a| (a.slot, a.seq)), Some((0, 1)));
+    assert!(!app.armed(), "no grasp start before the restart");
+    assert_eq!(reboot(&flash, HAND), (reload, Some(fingerprint(NEW))));
+}
+
+/// Sequence numbers wrap: with the active slot at `u32::MAX`, the next commit numbers the new
+/// slot 1 (0 is the factory blob's), says so, and a reboot picks it (then 2, and so on).
+#[test]
+fn slot_choice_survives_the_sequence_wrap() {
+    // The factory slot given a trailer at u32::MAX − 1: the next upload gets u32::MAX.
+    let mut board = Board::factory();
+    let t = upload::Trailer {
+        seq: u32::MAX - 1,
+        len: FACTORY.len() as u32,
+        crc: crc(FACTORY),
+    };
+    let tail = (SLOT_WORDS * 4 - TRAILER_LEN) / 4;
+    for (w, b) in board.s1[tail..]
+        .iter_mut()
+        .zip(t.to_bytes().chunks_exact(4))
+    {
+        *w = u32::from_ne_bytes(b.try_into().unwrap());
+    }
+    let mut flash = board.flash();
+    assert_eq!(
+        reboot(&flash, HAND).0.map(|a| (a.slot, a.seq)),
+        Some((1, u32::MAX - 1))
+    );
+    let mut ram = Box::new(Ram::new());
+    let (active, mut app) = app_over(&flash, HAND, &mut ram);
+    released(&mut app);
+    let mut up = Uploader::new(active);
+    let (r, _) = upload_all(&mut up, &mut app, &mut flash, NEW);
+    assert_eq!(upload_reply(&r).3, u32::MAX);
+    assert_eq!(
+        reboot(&flash, HAND).0.map(|a| (a.slot, a.seq)),
+        Some((0, u32::MAX))
+    );
+    let mut expected = [(1, 1), (0, 2), (1, 3)].into_iter();
+    for blob in [FACTORY, NEW, FACTORY] {
+        let (want_slot, want_seq) = expected.next().unwrap();
+        let mut ram = Box::new(Ram::new());
+        let (active, mut app) = app_over(&flash, HAND, &mut ram);
+        released(&mut app);
+        let mut up = Uploader::new(active);
+        let (r, o) = upload_all(&mut up, &mut app, &mut flash, blob);
+        let (code, _, slot, seq, _) = upload_reply(&r);
+        assert_eq!((code, slot, seq), (upload_code::OK, want_slot, want_seq));
+        assert!(matches!(o, Outcome::Reload(a) if (a.slot, a.seq) == (slot, seq)));
+        let (booted, running) = reboot(&flash, HAND);
+        assert_eq!(
+            booted.map(|a| (a.slot, a.seq)),
+            Some((slot, seq)),
+            "after {seq}"
+        );
+        assert_eq!(running, Some(fingerprint(blob)));
+    }
+    assert!(upload::newer(1, u32::MAX) && !upload::newer(u32::MAX, 1));
+    assert!(upload::newer(1, 0) && !upload::newer(5, 5));
+    // The factory blob (0, no trailer) is older than every committed number, past 2^31 too.
+    assert!(upload::newer(0x8000_0001, 0) && !upload::newer(0, 0x8000_0001));
 }

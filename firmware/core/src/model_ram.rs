@@ -84,9 +84,16 @@ impl<const N: usize> ModelRam<N> {
     /// and copies it into the buffer as a RAM image ([`IMAGE_MAGIC`]: the LSTM weights in the
     /// blocked layout of [`pack_lstm_blocks`], which the register-blocked kernel reads); if the
     /// weights cannot take that layout, or the image does not fit but the blob does, as a plain
-    /// copy of the blob. Returns the copy, ready for [`crate::model::Model::from_bytes`]. On an
-    /// error nothing is copied and the previous contents stay.
+    /// copy of the blob. Returns the copy, ready for [`crate::model::Model::from_bytes`]: the
+    /// image is parsed before it is returned and must describe the same model (fingerprint,
+    /// length, header), else the plain copy is returned instead, so whatever blob `src` holds,
+    /// the copy parses exactly when `src` does. `src` must be a blob (`SGMB`): a RAM image is
+    /// not loaded again (its weights are already re-laid; it exists only in RAM). On an error
+    /// nothing is copied and the previous contents stay.
     pub fn load(&mut self, src: &[u8]) -> Result<&[u8], LoadError> {
+        if src.get(..4) == Some(&IMAGE_MAGIC[..]) {
+            return Err(LoadError::Blob(BlobError::BadMagic));
+        }
         let blob = ModelBlob::parse(src)?;
         let len = blob.len;
         let too_large = LoadError::TooLarge {
@@ -103,9 +110,12 @@ impl<const N: usize> ModelRam<N> {
             let crc = CRC32.checksum(&self.bytes[..len]);
             self.bytes[len..len + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
             self.len = len + CRC_LEN;
-        } else {
+        }
+        let same = |b: ModelBlob<'_>| (b.crc, b.len, b.config) == (blob.crc, blob.len, blob.config);
+        if self.len == len || !ModelBlob::parse(self.bytes()).is_ok_and(same) {
             // A plain copy (row-major weights, still read from RAM).
             self.bytes[..len].copy_from_slice(&src[..len]);
+            self.len = len;
         }
         Ok(self.bytes())
     }
@@ -220,6 +230,22 @@ mod tests {
                 "byte {at}"
             );
         }
+    }
+
+    #[test]
+    fn an_image_is_not_loaded_again() {
+        // A RAM image parses (it is what runs), but it is not a blob to load: refused, the
+        // copy unchanged.
+        let src = golden();
+        let mut ram = Box::new(ModelRam::<MODEL_RAM_BYTES>::new());
+        let image = ram.load(src.as_bytes()).unwrap().to_vec();
+        let again = AlignedBlob::new(&image);
+        assert!(again.parse().is_ok());
+        assert_eq!(
+            ram.load(again.as_bytes()),
+            Err(LoadError::Blob(BlobError::BadMagic))
+        );
+        assert!(ram.bytes() == image);
     }
 
     #[test]

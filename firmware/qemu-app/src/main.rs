@@ -186,13 +186,10 @@ async fn main(spawner: Spawner) {
     let mut flash = SimFlash::new(slot0, slot1);
     let mut uploader = Uploader::new(upload::select(&flash, &PROFILE));
     // As on the board (the factory slot's blob): the blob validated and copied to RAM, or run in place if it is bad.
-    let model_bytes = match MODEL_RAM.take().load(model_region()) {
-        Ok(image) => image,
-        Err(e) => {
-            hprintln!("slipguard-qemu-app: model stays in flash: {}", e);
-            model_region()
-        }
-    };
+    let (model_bytes, copied) = upload::load(MODEL_RAM.take(), model_region());
+    if let Err(e) = copied {
+        hprintln!("slipguard-qemu-app: model stays in flash: {}", e);
+    }
     let app = APP.init_with(|| App::new(PROFILE, model_bytes));
     #[cfg(feature = "all-contact")]
     {
