@@ -237,52 +237,59 @@ pub fn plot_pairs(rows: &[(&Trial, &Trial)], path: &Path, xmax: Option<usize>) -
     root.present().map_err(|e| perr(path, e))
 }
 
-/// Spectra: one line per (name, values, colour) against `freqs`.
+/// Spectra: one line per (name, values, colour) against `freqs` (the DC bin, excluded from
+/// the shares, is not drawn), the legend right of the plot.
 pub fn plot_spectra(
     title: &str,
     freqs: &[f64],
     series: &[(String, Vec<f64>, RGBColor)],
     path: &Path,
 ) -> Result<()> {
-    let root = BitMapBackend::new(writable(path)?, (900, 480)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| perr(path, e))?;
+    draw_spectra(title, freqs, series, path).map_err(|e| perr(path, e))
+}
+
+fn draw_spectra(
+    title: &str,
+    freqs: &[f64],
+    series: &[(String, Vec<f64>, RGBColor)],
+    path: &Path,
+) -> std::result::Result<(), Box<dyn std::error::Error>> {
+    let root = BitMapBackend::new(writable(path)?, (1100, 480)).into_drawing_area();
+    root.fill(&WHITE)?;
     let ymax = series
         .iter()
         .flat_map(|s| s.1.iter().copied())
         .fold(1e-9f64, f64::max)
         * 1.1;
     let xmax = freqs.last().copied().unwrap_or(8.35);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 18))
+    let (plot, legend) = split_legend(&root);
+    let mut chart = ChartBuilder::on(&plot)
+        .caption(title, ("sans-serif", 17))
         .margin(10)
         .x_label_area_size(35)
         .y_label_area_size(60)
-        .build_cartesian_2d(0f64..xmax, 0f64..ymax)
-        .map_err(|e| perr(path, e))?;
+        .build_cartesian_2d(0f64..xmax, 0f64..ymax)?;
     chart
         .configure_mesh()
         .x_desc("Hz")
         .y_desc("share of power (DC excluded)")
-        .draw()
-        .map_err(|e| perr(path, e))?;
+        .light_line_style(WHITE.mix(0.0))
+        .draw()?;
+    let mut keys = Vec::new();
     for (name, v, col) in series {
-        let col = *col;
-        chart
-            .draw_series(LineSeries::new(
-                freqs.iter().copied().zip(v.iter().copied()),
-                col.stroke_width(2),
-            ))
-            .map_err(|e| perr(path, e))?
-            .label(name.clone())
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
+        chart.draw_series(LineSeries::new(
+            freqs
+                .iter()
+                .copied()
+                .zip(v.iter().copied())
+                .filter(|&(f, _)| f > 0.0),
+            col.stroke_width(2),
+        ))?;
+        keys.push(Key::solid(name.clone(), *col, 2));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.3))
-        .draw()
-        .map_err(|e| perr(path, e))?;
-    root.present().map_err(|e| perr(path, e))
+    draw_keys(&legend, 40, &keys)?;
+    root.present()?;
+    Ok(())
 }
 
 /// All channels of trials stacked vertically (for suction: 71 Hz over 17.75 Hz), x in seconds,

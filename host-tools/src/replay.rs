@@ -20,7 +20,13 @@ use slipguard_data::trial::{Trial, Unit};
 
 /// The golden variant (c) blob (random PyTorch-init weights) shipped with the core's tests.
 pub fn golden_model_path() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/core/tests/fixtures/bench/model.bin")
+    repo_root().join("firmware/core/tests/fixtures/bench/model.bin")
+}
+
+/// The repository root (this crate's parent folder), without `..` in the path.
+fn repo_root() -> PathBuf {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    manifest.parent().unwrap_or(manifest).to_path_buf()
 }
 
 /// The default model blobs for a profile: every `models/<dir>/*.bin` of the repository
@@ -40,9 +46,7 @@ pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
 
 /// The blobs (`*.bin`, sorted) of `models/<dir>/` in this repository; empty if there are none.
 pub fn shipped_blobs(dir: &str) -> Vec<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../models")
-        .join(dir);
+    let dir = repo_root().join("models").join(dir);
     let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
         .map(|rd| {
             rd.filter_map(|e| e.ok().map(|e| e.path()))
