@@ -272,7 +272,8 @@ struct ExportArgs {
     /// Also write a Rust source file that places the blob in the firmware's `.model` section.
     #[arg(long)]
     rust_snippet: Option<PathBuf>,
-    /// Report path prefix: writes PREFIX.md and PREFIX.json (default: the output with .report).
+    /// Report path prefix: writes PREFIX.md and PREFIX.json (default: the output's name with
+    /// `.report` added, e.g. `-o mine.bin` writes mine.bin.report.md and mine.bin.report.json).
     #[arg(long)]
     report: Option<PathBuf>,
     /// Do not write the report files.

@@ -89,3 +89,31 @@ fn numeric_options_name_their_unit_and_take_negative_numbers_to_the_check() {
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("allowed range"), "{err}");
 }
+
+/// The field guide names the report the exporter writes (`-o mine.bin` → `mine.bin.report.md`).
+#[test]
+fn the_guide_names_the_report_file_the_exporter_writes() {
+    let guide = std::fs::read_to_string(repo().join("docs/field-guide.md")).unwrap();
+    assert!(
+        guide.contains("`mine.bin.report.md`"),
+        "the guide names another report file"
+    );
+    assert!(!guide.contains("`mine.report.md`"));
+    let dir = std::env::temp_dir().join(format!("slipguard-export-report-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fixture = repo().join("model-export/tests/fixtures/torch_c.safetensors");
+    let out = exporter()
+        .arg("export")
+        .arg(&fixture)
+        .args(["--cell-bits", "10", "-q", "-o"])
+        .arg(dir.join("mine.bin"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(dir.join("mine.bin.report.md").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
