@@ -481,8 +481,14 @@ pub fn draw_fig8_marks<'a, DB: DrawingBackend + 'a>(
                 gap,
                 col.stroke_width(2),
             ))?;
+            // A sequence cut to a channel's contact onset clamps an earlier lift to its start.
+            let at = if name == "lift" && m <= 0.0 {
+                "at or before".to_string()
+            } else {
+                "at".to_string()
+            };
             keys.push(Key::dashed(
-                format!("{name} at {m:.1} s"),
+                format!("{name} {at} {m:.1} s"),
                 col,
                 2,
                 (dash.min(8), gap),
