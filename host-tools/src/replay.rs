@@ -20,7 +20,13 @@ use slipguard_data::trial::{Trial, Unit};
 
 /// The golden variant (c) blob (random PyTorch-init weights) shipped with the core's tests.
 pub fn golden_model_path() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/core/tests/fixtures/bench/model.bin")
+    repo_root().join("firmware/core/tests/fixtures/bench/model.bin")
+}
+
+/// The repository root (this crate's parent folder), without `..` in the path.
+fn repo_root() -> PathBuf {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    manifest.parent().unwrap_or(manifest).to_path_buf()
 }
 
 /// The default model blobs for a profile: every `models/<dir>/*.bin` of the repository
@@ -40,9 +46,7 @@ pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
 
 /// The blobs (`*.bin`, sorted) of `models/<dir>/` in this repository; empty if there are none.
 pub fn shipped_blobs(dir: &str) -> Vec<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../models")
-        .join(dir);
+    let dir = repo_root().join("models").join(dir);
     let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
         .map(|rd| {
             rd.filter_map(|e| e.ok().map(|e| e.path()))
@@ -226,11 +230,12 @@ pub fn flags_by_frame(frames: &[Frame], rate_mhz: u32, len: usize) -> Vec<Option
     }
     v
 }
-
-/// A plot in the style of the paper's Fig. 8: normalized force (thin blue), labels
-/// (1 = stable, red dashed bold), prediction (1 = stable, blue bold: no channel flagged, or
-/// only `channel` when given), the largest p(unstable) (thin grey), grasp (green dotted), lift
-/// (yellow dotted) and drop (red dash-dot) marks. Faulted frames are shaded grey.
+/// A plot in the style of the paper's Fig. 8, in seconds, with the firmware's convention
+/// 1 = unstable (the flag): the sensor summed over the shown channels (scaled 0–1, thin grey),
+/// the largest p(unstable) (thin light blue), labels (orange dashed), prediction (blue: any
+/// channel flagged, or only `channel` when given), grasp / lift / drop marks and the legend
+/// right of the data. Faulted frames are shaded grey; the title's second line says the outcome
+/// and whether the flag came in time.
 pub fn plot_fig8(
     trial: &Trial,
     flags: &[Option<Flags>],
@@ -243,6 +248,8 @@ pub fn plot_fig8(
         message: e.to_string(),
     };
     let n = trial.n_steps();
+    let rate = trial.rate_hz;
+    let t = |i: usize| i as f32 / rate;
     let chans: Vec<usize> = match channel {
         Some(c) => vec![c],
         None => {
@@ -259,22 +266,26 @@ pub fn plot_fig8(
     let labels: Option<Vec<Option<f32>>> = trial
         .step_labels
         .as_ref()
-        .map(|l| l.iter().map(|s| s.map(|s| 1.0 - s.code() as f32)).collect())
+        .map(|l| l.iter().map(|s| s.map(|s| s.code() as f32)).collect())
         .or_else(|| {
             let l = label_annotated(trial, &LabelConfig::default().scaled_to(trial.rate_hz));
             (!l.steps.is_empty()).then(|| {
                 let mut v = vec![None; n];
                 for (j, s) in l.steps.iter().enumerate() {
-                    v[l.seq_start + j] = Some(1.0 - s.code() as f32);
+                    v[l.seq_start + j] = Some(s.code() as f32);
                 }
                 v
             })
         });
     let mask = channel.map_or(u16::MAX, |c| 1u16 << c);
+    let flagged: Vec<bool> = flags
+        .iter()
+        .map(|f| f.is_some_and(|f| f.unstable & mask != 0))
+        .collect();
     let pred: Vec<(f32, f32)> = flags
         .iter()
         .enumerate()
-        .filter_map(|(i, f)| f.map(|f| (i as f32, if f.unstable & mask != 0 { 0.0 } else { 1.0 })))
+        .filter_map(|(i, f)| f.map(|f| (t(i), if f.unstable & mask != 0 { 1.0 } else { 0.0 })))
         .collect();
     let pmax: Vec<(f32, f32)> = flags
         .iter()
@@ -285,22 +296,33 @@ pub fn plot_fig8(
                 .filter(|&c| mask & (1 << c) != 0 && f.p[c] != P_NONE)
                 .map(|c| f.p[c])
                 .max()?;
-            Some((i as f32, Q15(p as i16).to_f64() as f32))
+            Some((t(i), Q15(p as i16).to_f64() as f32))
         })
         .collect();
-    let root = BitMapBackend::new(crate::plot::writable(path)?, (1100, 420)).into_drawing_area();
+    let verdict = crate::plot::flag_verdict(
+        &flagged,
+        trial.outcome == slipguard_data::trial::Outcome::Failure,
+        trial.drop_step,
+        rate,
+    );
+    let (y0, y1) = crate::plot::FIG8_Y;
+    let root = BitMapBackend::new(crate::plot::writable(path)?, (1240, 460)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| perr(&e))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 16))
+    let body = crate::plot::draw_title(&root, title, &verdict).map_err(|e| perr(&e))?;
+    let (plot, legend) = crate::plot::split_legend(&body);
+    let mut chart = ChartBuilder::on(&plot)
         .margin(8)
-        .x_label_area_size(30)
-        .y_label_area_size(45)
-        .build_cartesian_2d(0f32..n.max(1) as f32, -0.05f32..1.15)
+        .x_label_area_size(36)
+        .y_label_area_size(56)
+        .build_cartesian_2d(crate::plot::fig8_x_range(t(n.max(1))), y0..y1)
         .map_err(|e| perr(&e))?;
     chart
         .configure_mesh()
-        .x_desc(format!("time step ({} Hz)", trial.rate_hz))
-        .y_desc("stable (1) / unstable (0)")
+        .x_desc(format!("seconds ({rate} Hz, {n} steps)"))
+        .y_desc("flag: 1 = unstable, 0 = stable")
+        .x_label_formatter(&|v| format!("{v:.1}"))
+        .y_labels(3)
+        .y_label_formatter(&|v| format!("{v:.1}"))
         .light_line_style(WHITE.mix(0.0))
         .draw()
         .map_err(|e| perr(&e))?;
@@ -310,53 +332,70 @@ pub fn plot_fig8(
         {
             chart
                 .draw_series(std::iter::once(Rectangle::new(
-                    [(i as f32, -0.05), (i as f32 + 1.0, 1.15)],
+                    [(t(i), y0), (t(i + 1), y1)],
                     BLACK.mix(0.08).filled(),
                 )))
                 .map_err(|e| perr(&e))?;
         }
     }
-    let blue = RGBColor(31, 119, 180);
+    let sensor = match trial.unit {
+        Unit::MilliNewton => "force",
+        Unit::Counts => "pressure",
+        Unit::Other(_) => "sensor",
+    };
+    use crate::plot::Key;
+    let mut keys = Vec::new();
+    let grey = RGBColor(120, 120, 120);
     chart
         .draw_series(LineSeries::new(
-            (0..n).map(|i| (i as f32, force[i] / fmax)),
-            blue.stroke_width(1),
+            (0..n).map(|i| (t(i), force[i] / fmax)),
+            grey.stroke_width(1),
         ))
-        .map_err(|e| perr(&e))?
-        .label("normalized force")
-        .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], blue));
+        .map_err(|e| perr(&e))?;
+    keys.push(Key::solid(
+        format!("{sensor} ({}), scaled 0–1", trial.unit),
+        grey,
+        1,
+    ));
+    let light = RGBColor(120, 170, 230);
     chart
-        .draw_series(LineSeries::new(
-            pmax,
-            RGBColor(150, 150, 150).stroke_width(1),
-        ))
-        .map_err(|e| perr(&e))?
-        .label("max p(unstable)")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], RGBColor(150, 150, 150)));
+        .draw_series(LineSeries::new(pmax, light.stroke_width(1)))
+        .map_err(|e| perr(&e))?;
+    keys.push(Key::solid("max p(unstable)", light, 1));
     if let Some(l) = labels {
         let pts: Vec<(f32, f32)> = l
             .iter()
             .enumerate()
-            .filter_map(|(i, v)| v.map(|v| (i as f32, v)))
+            .filter_map(|(i, v)| v.map(|v| (t(i), v + 0.03)))
             .collect();
+        let purple = crate::plot::LABEL_COLOR;
         chart
-            .draw_series(DashedLineSeries::new(pts, 8, 5, RED.stroke_width(3)))
-            .map_err(|e| perr(&e))?
-            .label("label")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], RED.stroke_width(3)));
+            .draw_series(DashedLineSeries::new(pts, 9, 5, purple.stroke_width(3)))
+            .map_err(|e| perr(&e))?;
+        keys.push(Key::dashed("label", purple, 3, (6, 4)));
     }
+    let blue = RGBColor(0, 60, 200);
     chart
         .draw_series(LineSeries::new(pred, blue.stroke_width(3)))
-        .map_err(|e| perr(&e))?
-        .label("prediction")
-        .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], blue.stroke_width(3)));
-    crate::plot::draw_fig8_marks(
-        &mut chart,
-        n,
-        trial.marks.grasp_start,
-        trial.marks.lift_start,
-        trial.drop_step,
-    )
-    .map_err(|e| perr(&e))?;
+        .map_err(|e| perr(&e))?;
+    keys.push(Key::solid("prediction (flag)", blue, 3));
+    let at = |m: Option<usize>| m.filter(|&m| m < n).map(t);
+    keys.extend(
+        crate::plot::draw_fig8_marks(
+            &mut chart,
+            at(trial.marks.grasp_start),
+            at(trial.marks.lift_start),
+            at(trial.drop_step),
+        )
+        .map_err(|e| perr(&e))?,
+    );
+    if flags.iter().flatten().any(|f| f.fault & mask != 0) {
+        keys.push(Key::solid(
+            "shaded: sensor fault",
+            RGBColor(200, 200, 200),
+            6,
+        ));
+    }
+    crate::plot::draw_keys(&legend, 8, &keys).map_err(|e| perr(&e))?;
     root.present().map_err(|e| perr(&e))
 }

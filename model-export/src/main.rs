@@ -81,8 +81,8 @@ struct UploadArgs {
     /// Serial port of the board's UART (e.g. /dev/ttyUSB0, COM3).
     #[arg(long)]
     port: String,
-    /// Baud rate (≥ 1).
-    #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..))]
+    /// Baud rate, bit/s (≥ 1).
+    #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..), allow_negative_numbers = true)]
     baud: u32,
     /// Send release first (the board refuses an upload while flagging is armed); only when
     /// the hand is open.
@@ -146,8 +146,8 @@ struct RunArgs {
     /// more than 0.01.
     #[arg(long)]
     check_features: Option<PathBuf>,
-    /// Column of the raw trace to use with --check-features (0-based).
-    #[arg(long, default_value_t = 0)]
+    /// Column of the raw trace to use with --check-features (0-based index).
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     column: usize,
 }
 
@@ -170,44 +170,45 @@ struct ModelArgs {
     /// d(t) = x(t) - x(t-1) is an input (true/false; default false).
     #[arg(long)]
     force_diff: Option<String>,
-    /// Sample rate the model was trained at, Hz (default 16.7).
-    #[arg(long)]
+    /// Sample rate the model was trained at, Hz (> 0; default 16.7).
+    #[arg(long, allow_negative_numbers = true)]
     sample_rate: Option<String>,
     /// Unit of raw samples: mN (default) or counts.
     #[arg(long)]
     input_unit: Option<String>,
-    /// Raw value mapped to 0 (default 0).
+    /// Raw value mapped to 0, in the input unit (mN or counts; integer, may be negative;
+    /// default 0).
     #[arg(long, allow_hyphen_values = true)]
     input_offset: Option<String>,
-    /// Raw span mapped to +1.0 (default 10000).
-    #[arg(long)]
+    /// Raw span mapped to +1.0, in the input unit (mN or counts; integer > 0; default 10000).
+    #[arg(long, allow_negative_numbers = true)]
     input_full_scale: Option<String>,
-    /// STFT window length (default 20).
-    #[arg(long)]
+    /// STFT window length N, samples (4 to 48; default 20).
+    #[arg(long, allow_negative_numbers = true)]
     stft_window: Option<String>,
-    /// First STFT bin (default 1).
-    #[arg(long)]
+    /// First STFT bin, DFT bin index (default 1: the DC bin 0 left out).
+    #[arg(long, allow_negative_numbers = true)]
     stft_first_bin: Option<String>,
-    /// Number of STFT bins (default 10).
-    #[arg(long)]
+    /// Number of STFT bins, count (default 10).
+    #[arg(long, allow_negative_numbers = true)]
     stft_bins: Option<String>,
     /// STFT window shape: rectangular (default) or hann.
     #[arg(long)]
     stft_shape: Option<String>,
-    /// p(unstable) threshold (default 0.5).
-    #[arg(long)]
+    /// p(unstable) threshold, probability (0 < p < 1; default 0.5).
+    #[arg(long, allow_negative_numbers = true)]
     threshold: Option<String>,
-    /// Steps at/above the threshold before the flag rises (default 1).
-    #[arg(long)]
+    /// Consecutive steps at/above the threshold before the flag rises, steps (1 to 255; default 1).
+    #[arg(long, allow_negative_numbers = true)]
     raise_after: Option<String>,
-    /// Steps below the threshold before the flag clears (default 1).
-    #[arg(long)]
+    /// Consecutive steps below the threshold before the flag clears, steps (1 to 255; default 1).
+    #[arg(long, allow_negative_numbers = true)]
     clear_after: Option<String>,
     /// Model name (ASCII, ≤ 12 bytes; default: the file's stem).
     #[arg(long)]
     name: Option<String>,
-    /// Model id, u32 (default: CRC-32 of the float weights).
-    #[arg(long)]
+    /// Model id, integer 0 to 4 294 967 295 (default: CRC-32 of the float weights).
+    #[arg(long, allow_negative_numbers = true)]
     model_id: Option<String>,
     /// Normalisation means, JSON array in feature order [force, d(t), bands...].
     #[arg(long, allow_hyphen_values = true)]
@@ -272,19 +273,21 @@ struct ExportArgs {
     /// Validation data for the quantized-vs-float agreement (default: the calibration data).
     #[arg(long)]
     validation: Option<PathBuf>,
-    /// Use at most this many trials of each data set (≥ 1).
-    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
+    /// Use at most this many trials of each data set (count ≥ 1).
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..), allow_negative_numbers = true)]
     max_trials: Option<usize>,
     /// Fit the normalisation on --data when the model carries none (must match training).
     #[arg(long)]
     fit_norm: bool,
-    /// Fixed cell fractional bits C (c is Q(15-C).C), e.g. 11 or 11,10, instead of calibrating.
-    #[arg(long)]
+    /// Fixed cell fractional bits C, bits (1 to 15; c is Q(15-C).C), e.g. 11 or 11,10, instead
+    /// of calibrating.
+    #[arg(long, allow_negative_numbers = true)]
     cell_bits: Option<String>,
     /// Also write a Rust source file that places the blob in the firmware's `.model` section.
     #[arg(long)]
     rust_snippet: Option<PathBuf>,
-    /// Report path prefix: writes PREFIX.md and PREFIX.json (default: the output with .report).
+    /// Report path prefix: writes PREFIX.md and PREFIX.json (default: the output's name with
+    /// `.report` added, e.g. `-o mine.bin` writes mine.bin.report.md and mine.bin.report.json).
     #[arg(long)]
     report: Option<PathBuf>,
     /// Do not write the report files.
@@ -311,15 +314,15 @@ struct VerifyArgs {
     data: PathBuf,
     #[command(flatten)]
     m: ModelArgs,
-    /// Use at most this many trials (≥ 1).
-    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
+    /// Use at most this many trials (count ≥ 1).
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..), allow_negative_numbers = true)]
     max_trials: Option<usize>,
     /// Fail (exit 13) below this flag agreement on decisive steps (float p at least 0.02 from
     /// the threshold over the hysteresis window); 0 ≤ x ≤ 1.
-    #[arg(long, default_value_t = calib::MIN_DECISIVE_AGREEMENT, value_parser = share)]
+    #[arg(long, default_value_t = calib::MIN_DECISIVE_AGREEMENT, value_parser = share, allow_negative_numbers = true)]
     min_flag_agreement: f64,
     /// Fail (exit 13) above this max |Δp| over every step of every whole recording; 0 ≤ x ≤ 1.
-    #[arg(long, default_value_t = calib::MAX_DP, value_parser = dp_bound)]
+    #[arg(long, default_value_t = calib::MAX_DP, value_parser = dp_bound, allow_negative_numbers = true)]
     max_dp: f32,
     /// Write the agreement as JSON.
     #[arg(long)]
@@ -706,6 +709,7 @@ fn run_trace(a: RunArgs) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    slipguard_data::pipe::exit_quietly_on_broken_pipe();
     let cli = Cli::parse();
     let result = match cli.cmd {
         Cmd::Export(a) => run_export(a),

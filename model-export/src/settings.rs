@@ -99,6 +99,18 @@ pub const KEYS: &[(&str, &str, &str)] = &[
     ),
 ];
 
+/// Provenance keys `slipguard train` writes into its checkpoints' metadata (docs/checkpoint.md):
+/// not settings of the blob, so the exporter knows and skips them without a warning.
+pub const TRAINER_PROVENANCE_KEYS: &[&str] = &[
+    "train_command",
+    "best_epoch",
+    "seconds_per_epoch",
+    "val_trials",
+    "fold",
+    "heldout_trials",
+    "qat",
+];
+
 /// Order in which a dual model's dense layer sees the two hidden states.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DualOrder {
@@ -151,6 +163,9 @@ impl Settings {
         for (k, v) in other {
             if KEYS.iter().any(|(key, _, _)| key == k) {
                 self.map.insert(k.clone(), v.clone());
+            } else if TRAINER_PROVENANCE_KEYS.contains(&k.as_str()) || k == keys::HIDDEN {
+                // The trainer's record of how the weights were made, and the LSTM sizes the
+                // exporter reads from the tensors' shapes: nothing to convert.
             } else if !self.unknown.contains(k) {
                 self.unknown.push(k.clone());
             }
@@ -449,6 +464,29 @@ mod tests {
         let mut c2 = back.resolve().unwrap().config;
         c2.model_id = c.model_id;
         assert_eq!(c, c2);
+    }
+
+    /// The shipped checkpoints' metadata, as `slipguard train` wrote it, holds no key the
+    /// exporter would call unknown (it used to note five).
+    #[test]
+    fn the_trainers_checkpoint_metadata_has_no_unknown_key() {
+        for m in ["hand-force", "hand-force-40hz", "suction"] {
+            let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .parent()
+                .unwrap()
+                .join(format!("models/{m}/{m}.safetensors"));
+            let bytes = std::fs::read(&path).unwrap();
+            let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+            let meta: BTreeMap<String, String> =
+                meta.metadata().clone().unwrap().into_iter().collect();
+            assert!(
+                meta.contains_key("train_command"),
+                "{m}: not a trainer checkpoint"
+            );
+            let mut s = Settings::defaults();
+            s.merge(&meta);
+            assert!(s.unknown.is_empty(), "{m}: unknown {:?}", s.unknown);
+        }
     }
 
     #[test]

@@ -209,6 +209,11 @@ pub fn load_eagle_dataset(
 pub fn default_data_dir() -> PathBuf {
     match std::env::var_os("SLIPGUARD_DATA") {
         Some(p) if !p.is_empty() => PathBuf::from(p),
-        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/eagle-shoal"),
+        // <repo>/host-tools/data → <repo>/data/eagle-shoal, without `..` in the path.
+        _ => Path::new(env!("CARGO_MANIFEST_DIR"))
+            .ancestors()
+            .nth(2)
+            .unwrap_or(Path::new("."))
+            .join("data/eagle-shoal"),
     }
 }

@@ -10,6 +10,7 @@ pub mod eagle;
 pub mod error;
 pub mod labels;
 pub mod metrics;
+pub mod pipe;
 pub mod recording;
 pub mod trial;
 

@@ -38,6 +38,17 @@ pub const MIN_RATE_HZ: f32 = 0.001;
 /// 16-channel samples in memory.
 pub const MAX_STEPS: usize = 1 << 20;
 
+/// The values a sensor of `unit` can physically report (reader and writer refuse others):
+/// force within ±1 000 000 mN (1 kN, far beyond any fingertip or gripper), counts of a converter
+/// of at most 16 bits (0 to 65 535). `None` (any finite value) for other units.
+pub fn physical_range(unit: &Unit) -> Option<(f32, f32)> {
+    match unit {
+        Unit::MilliNewton => Some((-1.0e6, 1.0e6)),
+        Unit::Counts => Some((0.0, 65_535.0)),
+        Unit::Other(_) => None,
+    }
+}
+
 /// Largest recording file the reader opens: 1 GiB (2^20 rows of 16 force channels take about
 /// 100 MiB as the writer writes them).
 pub const MAX_BYTES: u64 = 1 << 30;
@@ -317,6 +328,14 @@ fn check_meta(trial: &Trial) -> std::result::Result<(), String> {
         if let Some(t) = trial.samples[i].iter().position(|v| !v.is_finite()) {
             return Err(format!("channel `{n}` step {t} is not a finite number"));
         }
+        if let Some((lo, hi)) = physical_range(&trial.unit)
+            && let Some(t) = trial.samples[i].iter().position(|v| !(lo..=hi).contains(v))
+        {
+            return Err(format!(
+                "channel `{n}` step {t}: {} {} is outside the sensor's physical range {lo}..={hi}",
+                trial.samples[i][t], trial.unit
+            ));
+        }
     }
     for k in trial.extra.keys() {
         if k.is_empty()
@@ -583,13 +602,19 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
         }
         times.push((t, line));
         for (c, samples_c) in samples.iter_mut().enumerate() {
-            samples_c.push(parse_number(
-                path,
-                line,
-                c + 2,
-                &channel_names[c],
-                &f[c + 1],
-            )?);
+            let v = parse_number(path, line, c + 2, &channel_names[c], &f[c + 1])?;
+            if let Some((lo, hi)) = physical_range(&unit)
+                && !(lo..=hi).contains(&v)
+            {
+                return Err(parse_error(
+                    path,
+                    line,
+                    Some(c + 2),
+                    Some(&channel_names[c]),
+                    format!("{v} {unit} is outside the sensor's physical range {lo}..={hi} {unit}"),
+                ));
+            }
+            samples_c.push(v);
         }
         if let Some(pc) = phase_col {
             let p: Phase = f[pc]

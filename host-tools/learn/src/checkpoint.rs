@@ -20,10 +20,17 @@ use slipguard_core::features::stft::{StftConfig, WindowShape};
 use slipguard_core::float::{FloatDense, FloatLstm, FloatModel};
 
 use crate::error::{LearnError, Result};
-use crate::train::lstm_prefixes;
 
 /// `__metadata__` keys: the core's, shared with the exporter's settings.
 pub use slipguard_core::blob::keys;
+
+/// PyTorch prefixes of the LSTMs of a variant (the checkpoint's tensor names).
+pub fn lstm_prefixes(variant: Variant) -> &'static [&'static str] {
+    match variant {
+        Variant::DualLstm => &["lstm_force", "lstm_bands"],
+        _ => &["lstm"],
+    }
+}
 
 /// The settings format version written by this module (the exporter's `slipguard.format`).
 pub const FORMAT: &str = "1";

@@ -27,6 +27,7 @@ pub enum LearnError {
     /// The safetensors container does not read or write.
     Safetensors(safetensors::SafeTensorError),
     /// A candle operation failed.
+    #[cfg(feature = "train")]
     Candle(candle_core::Error),
     /// The float weights do not form a model the core can run.
     Model(FloatModelError),
@@ -45,6 +46,7 @@ impl fmt::Display for LearnError {
             LearnError::File { path, source } => write!(f, "{}: {source}", path.display()),
             LearnError::Checkpoint(m) => write!(f, "checkpoint: {m}"),
             LearnError::Safetensors(e) => write!(f, "safetensors: {e}"),
+            #[cfg(feature = "train")]
             LearnError::Candle(e) => write!(f, "candle: {e}"),
             LearnError::Model(e) => write!(f, "{e}"),
             LearnError::Blob(e) => write!(f, "blob does not parse: {e}"),
@@ -58,6 +60,7 @@ impl fmt::Display for LearnError {
 // (`anyhow`'s `{:#}`) shows each cause once.
 impl std::error::Error for LearnError {}
 
+#[cfg(feature = "train")]
 impl From<candle_core::Error> for LearnError {
     fn from(e: candle_core::Error) -> Self {
         LearnError::Candle(e)

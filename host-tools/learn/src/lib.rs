@@ -5,12 +5,15 @@
 //!
 //! Errors are [`error::LearnError`] (candle's and the data layer's wrapped).
 
+#[cfg(feature = "train")]
 pub mod baselines;
 pub mod checkpoint;
 pub mod error;
 pub mod evaluation;
 pub mod product;
+#[cfg(feature = "train")]
 pub mod qat;
+#[cfg(feature = "train")]
 pub mod train;
 
 pub use error::{LearnError, Result};

@@ -23,7 +23,7 @@ use candle_nn::rnn::{LSTM, LSTMConfig, RNN};
 use candle_nn::{AdamW, Linear, Module, Optimizer, ParamsAdamW, VarBuilder, VarMap};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
-use slipguard_core::blob::{ModelConfig, Variant};
+use slipguard_core::blob::ModelConfig;
 use slipguard_core::float::{FloatModel, raw_feature_sequence};
 
 use crate::error::{LearnError, Result};
@@ -230,13 +230,7 @@ struct Net {
     n_features: usize,
 }
 
-/// PyTorch prefixes of the LSTMs of a variant.
-pub fn lstm_prefixes(variant: Variant) -> &'static [&'static str] {
-    match variant {
-        Variant::DualLstm => &["lstm_force", "lstm_bands"],
-        _ => &["lstm"],
-    }
-}
+pub use crate::checkpoint::lstm_prefixes;
 
 impl Net {
     fn new(init: &FloatModel, varmap: &mut VarMap, dev: &Device) -> Result<Self> {

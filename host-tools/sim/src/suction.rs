@@ -298,10 +298,12 @@ pub fn simulate_trial(
             Outcome::Success
         };
         tr.drop_step = t_detach.map(st);
+        // Slip begins where the seal starts to leak, or at the detachment itself when the cup
+        // lets go first (a heavy object on lift): never after the drop.
         if let Some((_, t0, ..)) = p.leak
-            && t_detach.is_some()
+            && let Some(td) = t_detach
         {
-            tr.slip_onset_step = Some(st(t0));
+            tr.slip_onset_step = Some(st(t0.min(td)));
         }
         // All four cups seal on the object.
         tr.contact = vec![true; 4];

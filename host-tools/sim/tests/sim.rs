@@ -174,3 +174,24 @@ fn suction_statistics() {
     let med = base[base.len() / 2];
     assert!((med - 6400.0).abs() < 120.0, "baseline median {med}");
 }
+
+/// Slip comes before (or with) the drop in every simulated suction failure, at both rates:
+/// `slipguard simulate --sensor suction` wrote a `slip_onset_step` after its `drop_step` when
+/// the cup detached before the leak began.
+#[test]
+fn suction_slip_onset_never_follows_the_drop() {
+    let cfg = suction::SuctionSimConfig::default();
+    let mut failures = 0;
+    for seed in 1..=3 {
+        for i in 0..60 {
+            let (hi, lo) = suction::simulate_trial(seed, i, Some(true), 1.0, &cfg);
+            for t in [&hi, &lo] {
+                if let (Some(s), Some(d)) = (t.slip_onset_step, t.drop_step) {
+                    failures += 1;
+                    assert!(s <= d, "{}: slip onset {s} after the drop {d}", t.id);
+                }
+            }
+        }
+    }
+    assert!(failures > 100, "only {failures} failures with a slip onset");
+}

@@ -325,13 +325,16 @@ fn plot(
     .into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
     let cells = root.split_evenly((rows.max(1), 1));
-    for (k, area) in cells.iter().enumerate().take(rows) {
+    for (k, cell) in cells.iter().enumerate().take(rows) {
+        use slipguard::plot::Key;
+        let (area, legend) = slipguard::plot::split_legend(cell);
+        let mut keys = Vec::new();
         let ymax = results
             .iter()
             .flat_map(|(_, r)| r[k].trace.iter().map(|p| p.grip.max(p.load).max(p.pads)))
             .fold(min[k], f64::max)
             * 1.1;
-        let mut chart = ChartBuilder::on(area)
+        let mut chart = ChartBuilder::on(&area)
             .caption(
                 format!(
                     "{} trial {k}: m {:.2} kg, μ {:.2}, initial grip {:.2} N",
@@ -351,6 +354,7 @@ fn plot(
             .configure_mesh()
             .x_desc("s")
             .y_desc("N")
+            .light_line_style(WHITE.mix(0.0))
             .draw()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         let e = |e: &dyn std::fmt::Display| anyhow::anyhow!("{e}");
@@ -360,19 +364,18 @@ fn plot(
                 off.trace.iter().map(|p| (p.t, p.load)),
                 BLACK.stroke_width(1),
             ))
-            .map_err(|x| e(&x))?
-            .label("load (off)")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], BLACK));
+            .map_err(|x| e(&x))?;
+        keys.push(Key::solid("load (off)", BLACK, 1));
+        let grey = RGBColor(128, 128, 128);
         chart
             .draw_series(DashedLineSeries::new(
                 [(0.0, min[k]), (slipguard::closed_loop::DURATION_S, min[k])],
                 6,
                 4,
-                RGBColor(128, 128, 128).stroke_width(1),
+                grey.stroke_width(1),
             ))
-            .map_err(|x| e(&x))?
-            .label("minimum grip needed")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 14, y)], RGBColor(128, 128, 128)));
+            .map_err(|x| e(&x))?;
+        keys.push(Key::dashed("minimum grip needed", grey, 1, (6, 4)));
         for (j, (name, r)) in results.iter().enumerate() {
             let col = COLOURS[j % COLOURS.len()];
             let o = &r[k];
@@ -381,12 +384,12 @@ fn plot(
                     o.trace.iter().map(|p| (p.t, p.grip)),
                     col.stroke_width(2),
                 ))
-                .map_err(|x| e(&x))?
-                .label(format!(
-                    "grip, {name}{}",
-                    if o.dropped { " (dropped)" } else { "" }
-                ))
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], col.stroke_width(2)));
+                .map_err(|x| e(&x))?;
+            keys.push(Key::solid(
+                format!("grip, {name}{}", if o.dropped { " (dropped)" } else { "" }),
+                col,
+                2,
+            ));
             chart
                 .draw_series(LineSeries::new(
                     o.trace.iter().map(|p| (p.t, p.pads)),
@@ -411,14 +414,9 @@ fn plot(
                     .map_err(|x| e(&x))?;
             }
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.3))
-            .label_font(("sans-serif", 11))
-            .position(SeriesLabelPosition::UpperLeft)
-            .draw()
-            .map_err(|x| e(&x))?;
+        keys.push(Key::solid("thin: pad force, same colour", grey, 1));
+        keys.push(Key::solid("dots: flag raised; ×: drop", grey, 1));
+        slipguard::plot::draw_keys(&legend, 30, &keys).map_err(|x| e(&x))?;
     }
     root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
     Ok(())

@@ -19,7 +19,7 @@ use slipguard_data::labels::LabelConfig;
 use slipguard_learn::evaluation::sequences_of;
 use slipguard_learn::product::{self, CurvePoint, OnsetRule};
 
-use super::train::load_real_trials;
+use super::load_real_trials;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -271,7 +271,8 @@ pub fn eval_group(
                     s.cs.trial_id,
                     s.cs.channel
                 );
-                plot_prediction(s, &preds[i], &title, &dir.join(format!("{slug}.png")))?;
+                let unit = g.members[0].0.model.config.input_unit;
+                plot_prediction(s, &preds[i], unit, &title, &dir.join(format!("{slug}.png")))?;
             }
         }
         rows.push(Row {

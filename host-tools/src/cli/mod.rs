@@ -2,8 +2,11 @@
 //! To add a subcommand (`train`, `eval`, `replay`, `monitor`): add a module with
 //! an `Args` struct and `run(args) -> anyhow::Result<()>`, and one variant below.
 
+#[cfg(feature = "train")]
 mod baselines;
 mod bench_host;
+// The blob and range checks; some serve only `train`.
+#[cfg_attr(not(feature = "train"), allow(dead_code))]
 mod check;
 mod closed_loop;
 mod dataset;
@@ -14,11 +17,16 @@ mod monitor;
 mod progress;
 mod replay;
 mod simulate;
+#[cfg(feature = "train")]
 mod train;
 
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use anyhow::Context;
 use clap::{Parser, Subcommand};
+use slipguard_data::labels::LabelConfig;
+use slipguard_data::{Trial, eagle, load_path};
 
 /// slipguard host tools: grasp data, labels, simulator.
 #[derive(Debug, Parser)]
@@ -45,6 +53,7 @@ pub enum Command {
     )]
     Simulate(simulate::Args),
     /// The paper's Table I baselines (NB, KNN, SVM), cross-validated by trial.
+    #[cfg(feature = "train")]
     #[command(after_help = "Example:\n  slipguard baselines --folds 5 --models nb,knn")]
     Baselines(baselines::Args),
     /// Watch the firmware's flag stream (serial port or capture): live view, loss counts, recording.
@@ -63,6 +72,7 @@ pub enum Command {
     )]
     ClosedLoop(closed_loop::Args),
     /// Train the paper's four LSTM variants (candle), with cross-validation by trial.
+    #[cfg(feature = "train")]
     #[command(
         after_help = "Examples:\n  slipguard train --variant lstm --hidden 32 --epochs 5 --out runs/quick\n  slipguard train --variant all --cv 5 --tune-decision --out runs/cv"
     )]
@@ -80,6 +90,26 @@ pub enum Command {
         after_help = "Examples:\n  slipguard bench-host\n  slipguard bench-host --run-torch\n  slipguard bench-host --seconds 0.2 --batch 16,256 --torch out/torch.json"
     )]
     BenchHost(bench_host::Args),
+    /// `train` and `baselines` in a build without the `train` feature: a clear error.
+    #[cfg(not(feature = "train"))]
+    #[command(external_subcommand)]
+    NotBuilt(Vec<String>),
+}
+
+/// The real trials (default: `$SLIPGUARD_DATA` or the repository's `data/eagle-shoal`),
+/// annotated with the default labelling rules; a clear message when the folder is missing.
+pub fn load_real_trials(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Trial>)> {
+    let path = path.map_or_else(eagle::default_data_dir, Path::to_path_buf);
+    anyhow::ensure!(
+        path.exists(),
+        "data folder {} not found: set SLIPGUARD_DATA or pass the eagle-shoal folder \
+         (the repository ships the trials in data/eagle-shoal)",
+        path.display()
+    );
+    let cfg = LabelConfig::default();
+    let trials =
+        load_path(&path, &cfg, |_, _| {}).with_context(|| format!("loading {}", path.display()))?;
+    Ok((path, trials))
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -87,18 +117,30 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Label(a) => label::run(a),
         Command::Simulate(a) => simulate::run(a),
+        #[cfg(feature = "train")]
         Command::Baselines(a) => baselines::run(a),
         Command::Monitor(a) => monitor::run(a),
         Command::Replay(a) => replay::run(a),
         Command::ClosedLoop(a) => closed_loop::run(a),
+        #[cfg(feature = "train")]
         Command::Train(a) => train::run(*a),
         Command::Eval(a) => eval::run(a),
         Command::Demo(a) => demo::run(a),
         Command::BenchHost(a) => bench_host::run(a),
+        #[cfg(not(feature = "train"))]
+        Command::NotBuilt(args) => {
+            let name = args.first().map_or("", String::as_str);
+            anyhow::bail!(
+                "`{name}` is not a subcommand of this build: `train` and `baselines` need the \
+                 default feature `train` (this binary was built with --no-default-features); \
+                 run it as `cargo run --release -p slipguard -- {name} ...`"
+            )
+        }
     }
 }
 
 pub fn main() -> ExitCode {
+    slipguard_data::pipe::exit_quietly_on_broken_pipe();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,

@@ -32,8 +32,8 @@ pub struct Args {
     /// Serial port (e.g. /dev/ttyUSB0) the firmware's USART1 is connected to.
     #[arg(long, conflicts_with = "capture", required_unless_present = "capture")]
     pub port: Option<String>,
-    /// Baud rate (8N1, no flow control).
-    #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..))]
+    /// Baud rate, bit/s (≥ 1; 8N1, no flow control).
+    #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..), allow_negative_numbers = true)]
     pub baud: u32,
     /// Read a capture file (raw bytes as received) instead of a port.
     #[arg(long)]
@@ -60,11 +60,11 @@ pub struct Args {
     /// i info.
     #[arg(long)]
     pub no_keys: bool,
-    /// Stop after this many flag frames.
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    /// Stop after this many flag frames (count ≥ 1).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..), allow_negative_numbers = true)]
     pub frames: Option<u64>,
-    /// Stop after this many seconds (port only).
-    #[arg(long, value_parser = super::check::positive)]
+    /// Stop after this many seconds (s > 0; port only).
+    #[arg(long, value_parser = super::check::positive, allow_negative_numbers = true)]
     pub seconds: Option<f64>,
     /// Port only: send an info command first (learns the frame rate and the model).
     #[arg(long)]
@@ -216,9 +216,47 @@ fn message_line(m: &Message) -> String {
     }
 }
 
+/// Checks before any byte is read that an output file can be written at `path`: its folder
+/// exists and the path is not a folder. Creates the file to prove it (the recorder writes it
+/// from the first samples frame on), and removes it again if it did not exist, so that a
+/// session that records nothing leaves nothing behind.
+pub fn check_output_file(option: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    if path.is_dir() {
+        bail!("{option} {}: is a folder; give a file name", path.display());
+    }
+    let folder = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    if !folder.is_dir() {
+        bail!(
+            "{option} {}: the folder {} does not exist; create it first (mkdir -p {})",
+            path.display(),
+            folder.display(),
+            folder.display()
+        );
+    }
+    let existed = path.exists();
+    std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(path)
+        .with_context(|| format!("{option} {}: cannot be written", path.display()))?;
+    if !existed {
+        let _ = std::fs::remove_file(path);
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     if a.capture.is_some() && (a.stream_mode.is_some() || !a.send.is_empty()) {
         bail!("--stream-mode and --send need --port (a capture cannot be sent commands)");
+    }
+    if let Some(p) = &a.record {
+        check_output_file("--record", p)?;
+    }
+    if let Some(p) = &a.save_raw {
+        check_output_file("--save-raw", p)?;
     }
     let mut mon = Monitor::new();
     mon.keep = a.record.is_some();
@@ -377,6 +415,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     if let Some(r) = &mut raw {
         r.flush()?;
+    }
+    // A port that sent nothing at all: the session shows no stream, so it is an error that
+    // says what to check, not a summary with bytes=0.
+    if let Some(name) = &a.port
+        && mon.stats.bytes == 0
+        && read_error.is_none()
+    {
+        bail!(
+            "no byte received from {name} at {} baud{}: check that the board is powered and runs \
+             the slipguard firmware, the wiring (board TX to the adapter's RX, common ground), \
+             the port name, and that the baud rate matches the firmware's (921600 by default)",
+            a.baud,
+            if a.info {
+                "; the info command got no reply"
+            } else {
+                ""
+            }
+        );
     }
     if view == View::Table {
         let _ = write!(out, "\x1b[H\x1b[2J");

@@ -30,17 +30,19 @@ pub struct Args {
     /// Sensor set-up to simulate.
     #[arg(long, value_enum, default_value_t = Sensor::Force)]
     pub sensor: Sensor,
-    /// Sample rate for force trials (16.7 as the dataset, 40 as the DoraHand).
-    #[arg(long, default_value_t = PAPER_RATE_HZ)]
-    pub rate: f64,
-    /// Number of trials (default 10; 100 with --validate).
-    #[arg(long, value_parser = super::check::usize_in!(1..=1_000_000))]
+    /// Sample rate of force trials, Hz (1 to 500: the physics runs at 1 kHz; default 16.7, the
+    /// dataset's; 40 = the DoraHand). Suction trials are always written at 71 Hz and 17.75 Hz.
+    #[arg(long, value_parser = rate_hz, allow_negative_numbers = true)]
+    pub rate: Option<f64>,
+    /// Number of trials (count, 1 to 1 000 000; default 10, 100 with --validate). Refused before
+    /// simulating when the samples would not fit in memory (2 GB).
+    #[arg(long, value_parser = super::check::usize_in!(1..=1_000_000), allow_negative_numbers = true)]
     pub count: Option<usize>,
-    /// Seed; the same seed gives byte-identical trials.
-    #[arg(long, default_value_t = 1)]
+    /// Seed (integer ≥ 0); the same seed gives byte-identical trials.
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     pub seed: u64,
-    /// Share of trials drawn with marginal (dropping) parameters.
-    #[arg(long, default_value_t = 0.3)]
+    /// Share of trials drawn with marginal (dropping) parameters (0 to 1).
+    #[arg(long, default_value_t = 0.3, value_parser = super::check::unit, allow_negative_numbers = true)]
     pub failure_share: f64,
     /// Write the trials as slipguard recordings into this folder.
     #[arg(long)]
@@ -59,20 +61,71 @@ pub struct Args {
     pub report_dir: Option<PathBuf>,
 }
 
+/// Lowest and highest `--rate`, Hz: below 1 Hz a trial has a few samples; the physics is
+/// integrated at [`force::INTERNAL_HZ`] (1 kHz), so above its Nyquist rate the output would be
+/// interpolation.
+pub const RATE_RANGE_HZ: (f64, f64) = (1.0, force::INTERNAL_HZ / 2.0);
+
+/// Samples the simulated trials may hold in memory, bytes (they are all kept before writing).
+pub const MAX_SAMPLE_BYTES: f64 = 2e9;
+
+/// clap parser of `--rate`: a number of Hz in [`RATE_RANGE_HZ`].
+fn rate_hz(s: &str) -> Result<f64, String> {
+    let (lo, hi) = RATE_RANGE_HZ;
+    match s.trim().parse::<f64>() {
+        Ok(v) if (lo..=hi).contains(&v) => Ok(v),
+        _ => Err(format!(
+            "`{s}` is not a rate in the allowed range {lo}..={hi} Hz (the simulator's physics \
+             runs at {} Hz)",
+            force::INTERNAL_HZ
+        )),
+    }
+}
+
+/// The bytes of samples `count` trials hold (f32 per channel and step), checked against
+/// [`MAX_SAMPLE_BYTES`] before any trial is simulated.
+fn check_memory(sensor: Sensor, rate: f64, count: usize) -> anyhow::Result<()> {
+    let per_trial = match sensor {
+        Sensor::Force => {
+            let cfg = ForceSimConfig::at_rate(rate);
+            cfg.n_steps() as f64 * cfg.n_channels as f64 * 4.0
+        }
+        Sensor::Suction => {
+            let cfg = SuctionSimConfig::default();
+            // The 71 Hz trial and its 17.75 Hz copy, 4 cups.
+            cfg.duration_s * cfg.rate_hz * (1.0 + 1.0 / cfg.decimate as f64) * 4.0 * 4.0
+        }
+    };
+    let total = per_trial * count as f64;
+    if total > MAX_SAMPLE_BYTES {
+        bail!(
+            "{count} trials at {rate} Hz would hold {:.1} GB of samples in memory (limit {:.0} GB): \
+             lower --count or --rate, or simulate in several runs with different --seed",
+            total / 1e9,
+            MAX_SAMPLE_BYTES / 1e9
+        );
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if !(a.rate.is_finite() && a.rate > 0.0) {
-        bail!("--rate must be a positive number of Hz, not {}", a.rate);
+    if a.sensor == Sensor::Suction && a.rate.is_some() {
+        bail!("--rate applies to force trials; suction trials are written at 71 Hz and 17.75 Hz");
     }
-    if !(0.0..=1.0).contains(&a.failure_share) {
-        bail!("--failure-share must be in [0, 1], not {}", a.failure_share);
+    if a.validate && a.rate.is_some() {
+        bail!(
+            "--validate compares with the real trials at their {PAPER_RATE_HZ} Hz: leave out --rate"
+        );
     }
+    let rate = a.rate.unwrap_or(PAPER_RATE_HZ);
+    let count = a.count.unwrap_or(if a.validate { 100 } else { 10 });
+    check_memory(a.sensor, rate, count)?;
     if a.validate {
         return validate_cmd(&a);
     }
-    let count = a.count.unwrap_or(10);
     let trials: Vec<Trial> = match a.sensor {
         Sensor::Force => {
-            let cfg = ForceSimConfig::at_rate(a.rate);
+            let cfg = ForceSimConfig::at_rate(rate);
             let pb = bar(count as u64, "simulating");
             let t = force::simulate_batch(a.seed, count, a.failure_share, &cfg, |i| {
                 pb.set_position(i as u64)

@@ -9,8 +9,8 @@ use slipguard_core::blob::Variant;
 use slipguard_core::decision::{ContactConfig, DecisionConfig, Q15};
 use slipguard_core::float::FloatModel;
 use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
+use slipguard_data::Trial;
 use slipguard_data::labels::{ChannelSequence, LabelConfig};
-use slipguard_data::{Trial, eagle, load_path};
 use slipguard_learn::checkpoint::{self, Checkpoint};
 use slipguard_learn::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
@@ -21,8 +21,8 @@ use slipguard_learn::product::{self, OnsetRule};
 use slipguard_learn::qat::{QatConfig, blob_agreement, qat_finetune};
 use slipguard_learn::train::{EpochLog, Progress, TrainConfig, init_model, split_by_trial, train};
 
-use super::check;
 use super::progress::bar;
+use super::{check, load_real_trials};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Sensor {
@@ -218,22 +218,6 @@ fn class_weights(s: &str) -> anyhow::Result<[f32; 2]> {
         .context("--class-weights: two numbers, e.g. 1,2")?;
     anyhow::ensure!(v.len() == 2, "--class-weights needs two numbers");
     Ok([v[0], v[1]])
-}
-
-/// Loads the real trials as sequences, with a clear message when the folder is missing.
-/// The real trials, annotated with the default labelling rules.
-pub fn load_real_trials(path: Option<&Path>) -> anyhow::Result<(PathBuf, Vec<Trial>)> {
-    let path = path.map_or_else(eagle::default_data_dir, Path::to_path_buf);
-    anyhow::ensure!(
-        path.exists(),
-        "data folder {} not found: set SLIPGUARD_DATA or pass the eagle-shoal folder \
-         (the repository ships the trials in data/eagle-shoal)",
-        path.display()
-    );
-    let cfg = LabelConfig::default();
-    let trials =
-        load_path(&path, &cfg, |_, _| {}).with_context(|| format!("loading {}", path.display()))?;
-    Ok((path, trials))
 }
 
 fn refs(v: &[Sequence]) -> Vec<&ChannelSequence> {

@@ -315,6 +315,20 @@ fn read_h5(path: &Path, bytes: Vec<u8>) -> Result<H5Weights> {
     let file_len = bytes.len();
     let f = hdf5_reader::Hdf5File::from_vec(bytes)
         .map_err(|e| ExportError::format(path, format!("not a readable HDF5 file: {e}")))?;
+    // The superblock records where the file ends: a shorter file lost its tail (an interrupted
+    // copy or download), where datasets would read as zeros or vanish. libhdf5 (h5py) refuses
+    // such a file too.
+    let sb = f.superblock();
+    let end = sb.base_address.saturating_add(sb.eof_address);
+    if end > file_len as u64 {
+        return Err(ExportError::format(
+            path,
+            format!(
+                "truncated: the HDF5 superblock says the file ends at byte {end}, the file has {file_len} bytes ({} missing); copy the whole file again",
+                end - file_len as u64
+            ),
+        ));
+    }
     let layers = f.group("layers").map_err(|e| {
         ExportError::missing(
             "layers",
@@ -520,8 +534,9 @@ fn with_config(
 ) -> Result<Imported> {
     let (layers, sequential) = parse_config(path, config)?;
     let mut notes = Vec::new();
-    let (lstm_layers, _dense, concat) = check_config(&layers, sequential, &mut notes)?;
+    let (lstm_layers, dense, concat) = check_config(&layers, sequential, &mut notes)?;
     let w = read_h5(weights_path, weights)?;
+    check_declared_biases(&dense, &w)?;
     if w.lstms.len() != lstm_layers.len() {
         return Err(ExportError::missing(
             "layers/lstm*/cell/vars",
@@ -551,6 +566,22 @@ fn with_config(
     }
     let names = lstm_layers.iter().map(|l| l.name.clone()).collect();
     to_imported(w, Some(names), concat, notes, format)
+}
+
+/// Every bias the config declares is in the weights file: the Dense layer's (`use_bias`
+/// defaults to true in Keras), as the LSTMs' are checked in [`with_config`].
+fn check_declared_biases(dense: &LayerInfo, w: &H5Weights) -> Result<()> {
+    let use_bias = dense.config.get("use_bias").and_then(Value::as_bool) != Some(false);
+    if let Some((base, shapes, _)) = &w.dense
+        && use_bias
+        && shapes[1].is_empty()
+    {
+        return Err(ExportError::missing(
+            format!("{base}/1 (bias of `{}`)", dense.name),
+            "the config says use_bias=True but the weights file has no bias",
+        ));
+    }
+    Ok(())
 }
 
 /// Largest `config.json` or `model.weights.h5` read from a `.keras` archive: 256 MiB, the
@@ -676,5 +707,39 @@ mod tests {
         let e = err_of(patched([16, 64], [4096, 64]));
         assert_eq!(e.exit_code(), 4, "{e}");
         assert!(e.to_string().contains("more than the whole file"), "{e}");
+    }
+
+    /// A file that lost its tail (h5py refuses it) used to convert with exit 0 and a zero
+    /// Dense bias: refused as truncated, whatever the number of bytes lost.
+    #[test]
+    fn a_truncated_weights_file_is_refused() {
+        for cut in [1usize, 8, 48, 200] {
+            let e = err_of(H5[..H5.len() - cut].to_vec());
+            assert_eq!(e.exit_code(), 4, "cut {cut}: {e}");
+            assert!(e.to_string().contains("truncated"), "cut {cut}: {e}");
+        }
+    }
+
+    /// The config of the `.keras` fixture (Dense with `use_bias` true) against weights whose
+    /// Dense bias dataset is gone: refused, not a silent zero bias.
+    #[test]
+    fn a_dense_bias_the_config_declares_must_be_present() {
+        let keras = include_bytes!("../../tests/fixtures/keras_c.keras");
+        let mut zip = zip::ZipArchive::new(std::io::Cursor::new(&keras[..])).unwrap();
+        let mut config = String::new();
+        zip.by_name("config.json")
+            .unwrap()
+            .read_to_string(&mut config)
+            .unwrap();
+        let (layers, sequential) = parse_config(Path::new("config.json"), &config).unwrap();
+        let (_, dense, _) = check_config(&layers, sequential, &mut Vec::new()).unwrap();
+        let mut w = read_h5(Path::new("keras_c.weights.h5"), H5.to_vec()).unwrap();
+        check_declared_biases(&dense, &w).expect("the intact file has its bias");
+        let d = w.dense.as_mut().unwrap();
+        d.1[1].clear();
+        d.2[1].clear();
+        let e = check_declared_biases(&dense, &w).expect_err("missing bias accepted");
+        assert_eq!(e.exit_code(), 5, "{e}");
+        assert!(e.to_string().contains("use_bias=True"), "{e}");
     }
 }

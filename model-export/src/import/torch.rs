@@ -144,6 +144,12 @@ pub fn import(path: &Path, bytes: &[u8]) -> Result<Imported> {
     }
     let (dense, dense_used) = found?;
     let mut notes = Vec::new();
+    if !tensors.contains_key(&dense.bias) {
+        notes.push(format!(
+            "`{}` has no bias tensor `{}` (nn.Linear(bias=False)): zero biases",
+            dense.weight, dense.bias
+        ));
+    }
     let ignored: Vec<&String> = names
         .iter()
         .filter(|n| !used.contains(*n) && !dense_used.contains(*n))
@@ -334,18 +340,21 @@ fn find_dense(
     used: &BTreeSet<String>,
     k: usize,
 ) -> Result<(NamedDense, BTreeSet<String>)> {
+    // A head without its bias tensor is `nn.Linear(K, 2, bias=False)`: an exact zero bias
+    // (the caller notes it).
     let pick = |w: &str, b: &str| -> Result<(NamedDense, BTreeSet<String>)> {
         let wt = &t[w];
-        let bt = t.get(b).ok_or_else(|| {
-            ExportError::missing(b, format!("`{w}` is present but its bias is not"))
-        })?;
         if wt.shape.len() != 2 {
             return Err(ExportError::shape(w, format!("[2, {k}]"), dims(&wt.shape)));
         }
         let (o, i) = (wt.shape[0], wt.shape[1]);
-        if bt.shape != [o] {
-            return Err(ExportError::shape(b, format!("[{o}]"), dims(&bt.shape)));
-        }
+        let bias = match t.get(b) {
+            Some(bt) if bt.shape != [o] => {
+                return Err(ExportError::shape(b, format!("[{o}]"), dims(&bt.shape)));
+            }
+            Some(bt) => bt.data.clone(),
+            None => vec![0.0; o],
+        };
         Ok((
             NamedDense {
                 weight: w.into(),
@@ -353,7 +362,7 @@ fn find_dense(
                 outputs: o,
                 inputs: i,
                 w: wt.data.clone(),
-                b: bt.data.clone(),
+                b: bias,
             },
             [w.to_string(), b.to_string()].into_iter().collect(),
         ))
@@ -366,7 +375,7 @@ fn find_dense(
         .filter(|n| !used.contains(*n) && n.ends_with("weight"))
         .filter(|n| {
             let s = &t[*n].shape;
-            s.len() == 2 && (s[0] == 1 || s[0] == 2) && s[1] == k && t.contains_key(&bias_of(n))
+            s.len() == 2 && (s[0] == 1 || s[0] == 2) && s[1] == k
         })
         .collect();
     match candidates.as_slice() {
@@ -374,7 +383,7 @@ fn find_dense(
         [] => Err(ExportError::missing(
             "dense.weight",
             format!(
-                "no `dense.weight` and no other [2, {k}] `<prefix>weight` with a `<prefix>bias` (nn.Linear to the 2 logits); the file has: {}",
+                "no `dense.weight` and no other [2, {k}] `<prefix>weight` (nn.Linear to the 2 logits); the file has: {}",
                 preview(&t.keys().cloned().collect::<Vec<_>>())
             ),
         )),
@@ -397,6 +406,53 @@ fn bias_of(weight: &str) -> String {
 
 #[cfg(test)]
 mod tests {
+    /// A state_dict of `nn.LSTM(3, 4)` named `lstm` and `nn.Linear(4, 2, bias=False)` named
+    /// `head` (tensor names and shapes as PyTorch saves them; values are arbitrary).
+    fn bias_free_head() -> Vec<u8> {
+        use safetensors::tensor::TensorView;
+        let (i, h) = (3usize, 4usize);
+        let shapes: [(&str, Vec<usize>); 5] = [
+            ("lstm.weight_ih_l0", vec![4 * h, i]),
+            ("lstm.weight_hh_l0", vec![4 * h, h]),
+            ("lstm.bias_ih_l0", vec![4 * h]),
+            ("lstm.bias_hh_l0", vec![4 * h]),
+            ("head.weight", vec![2, h]),
+        ];
+        let data: Vec<Vec<u8>> = shapes
+            .iter()
+            .map(|(_, s)| {
+                (0..s.iter().product::<usize>())
+                    .flat_map(|k| (0.01 * k as f32 - 0.1).to_le_bytes())
+                    .collect()
+            })
+            .collect();
+        let views: Vec<(&str, TensorView<'_>)> = shapes
+            .iter()
+            .zip(&data)
+            .map(|((n, s), d)| {
+                (
+                    *n,
+                    TensorView::new(safetensors::Dtype::F32, s.clone(), d).unwrap(),
+                )
+            })
+            .collect();
+        safetensors::serialize(views, None).unwrap()
+    }
+
+    #[test]
+    fn a_linear_head_without_bias_imports_with_zero_bias() {
+        let im = super::import(std::path::Path::new("head.safetensors"), &bias_free_head())
+            .expect("nn.Linear(H, 2, bias=False) is a single affine head");
+        assert_eq!(im.dense.weight, "head.weight");
+        assert_eq!(im.dense.b, vec![0.0, 0.0]);
+        assert_eq!((im.dense.outputs, im.dense.inputs), (2, 4));
+        assert!(
+            im.notes.iter().any(|n| n.contains("bias=False")),
+            "{:?}",
+            im.notes
+        );
+    }
+
     #[test]
     fn half_precision_converts_exactly() {
         use super::f16_to_f32;
