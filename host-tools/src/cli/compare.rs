@@ -36,6 +36,11 @@ pub struct Args {
     /// Write the figures as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Guard of the fused decision: the model's flag counts while the hand load is below this
+    /// fraction of its recent peak (fixed beforehand, not tuned; the strict fraction and the
+    /// window are the rule's, picked per fold on its training trials). 1 = no guard.
+    #[arg(long, default_value_t = 0.8, value_parser = super::check::unit)]
+    pub guard: f64,
     /// `slipguard train` options (after `--`).
     #[arg(last = true)]
     pub train_args: Vec<String>,
@@ -47,9 +52,12 @@ struct SeedRun {
     model: Vec<ArmedGrasp>,
     rule: Vec<ArmedGrasp>,
     rule_picks: String,
-    /// The fused decision (rule OR guarded model flag), picked per fold on its training trials.
+    /// The fused decision: the fold's rule OR the model's flag under the fixed guard.
     fused: Vec<ArmedGrasp>,
-    fused_picks: Vec<String>,
+    /// The fused decision with strict fraction, guard and window picked per fold on its
+    /// training trials (the fold's model in-sample there).
+    tuned: Vec<ArmedGrasp>,
+    tuned_picks: Vec<String>,
 }
 
 fn train_seeds(a: &Args) -> anyhow::Result<Vec<PathBuf>> {
@@ -86,6 +94,7 @@ fn seed_run(
     g: &Group,
     trials: &[Trial],
     real: &[slipguard_learn::evaluation::Sequence],
+    guard: f64,
 ) -> anyhow::Result<SeedRun> {
     use slipguard_learn::load_rule;
     let cfg = LabelConfig::default();
@@ -97,9 +106,15 @@ fn seed_run(
         &slipguard_core::decision::ContactConfig::of(config),
         &cfg,
     )?;
-    let mut folds = Vec::new();
+    let folds: Vec<Vec<String>> = g
+        .members
+        .iter()
+        .filter_map(|(ck, _)| eval::heldout(ck))
+        .collect();
+    let rule = eval::rule_eval(trials, config, Some(&folds))?;
     let mut model = Vec::new();
-    let (mut fused, mut fused_picks) = (Vec::new(), Vec::new());
+    let mut fused = Vec::new();
+    let (mut tuned, mut tuned_picks) = (Vec::new(), Vec::new());
     for (ck, blob) in &g.members {
         let h = eval::heldout(ck).ok_or_else(|| {
             anyhow::anyhow!(
@@ -132,20 +147,31 @@ fn seed_run(
                 pairs.push((l, w.run.hand_flag.as_slice()));
             }
         }
-        if let Some(f) = load_rule::pick_fused(&pairs) {
+        // The fold's own rule (picked on its training trials) with the fixed guard.
+        if let Some((_, r)) = rule
+            .per_fold
+            .iter()
+            .find(|(ids, _)| ids.iter().any(|i| h.contains(i)))
+        {
+            let f = slipguard_core::decision::FusedHand {
+                strict: *r,
+                guard_q15: load_rule::fused(0.0, guard, 0.0, 1.0).guard_q15,
+            };
             fused.extend(test.iter().map(|(l, m)| l.fused_grasp(m, &f)));
-            fused_picks.push(load_rule::fused_name(&f));
         }
-        folds.push(h);
+        if let Some(f) = load_rule::pick_fused(&pairs) {
+            tuned.extend(test.iter().map(|(l, m)| l.fused_grasp(m, &f)));
+            tuned_picks.push(load_rule::fused_name(&f));
+        }
     }
-    let rule = eval::rule_eval(trials, config, Some(&folds))?;
     Ok(SeedRun {
         name: g.name.clone(),
         model,
         rule: rule.grasps,
         rule_picks: rule.picks,
         fused,
-        fused_picks,
+        tuned,
+        tuned_picks,
     })
 }
 
@@ -218,7 +244,7 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     let real = eval::real_sequences(&trials);
     let mut seeds = Vec::new();
     for g in &groups {
-        seeds.push(seed_run(g, &trials, &real)?);
+        seeds.push(seed_run(g, &trials, &real, a.guard)?);
         eprintln!("compare: {} scored", g.name);
     }
     let mut md = String::new();
@@ -244,8 +270,13 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     let (r1, j1) = summary_row("model (hand flag)", &model_m);
     let (r2, j2) = summary_row("load rule", &rule_m);
     let fused_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.fused)).collect();
-    let (r3, j3) = summary_row("fused: rule OR guarded model flag", &fused_m);
-    let _ = writeln!(md, "{r1}\n{r2}\n{r3}");
+    let (r3, j3) = summary_row(
+        &format!("fused: rule OR (model flag AND load < {:.2}·peak)", a.guard),
+        &fused_m,
+    );
+    let tuned_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.tuned)).collect();
+    let (r4, j4) = summary_row("fused, all three parameters picked per fold", &tuned_m);
+    let _ = writeln!(md, "{r1}\n{r2}\n{r3}\n{r4}");
     let _ = writeln!(
         md,
         "\nLoad rule parameters, picked on each fold's training trials: {}.",
@@ -253,11 +284,14 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     );
     let _ = writeln!(
         md,
-        "\nFused decisions, picked per fold on its training trials (the fold's model in-sample \
-         there), with the models' criterion:\n"
+        "\nFused: the fold's rule at its picked fraction and window, OR the model's hand flag \
+         while the hand load is below {:.2} of the same peak (`slipguard_core::decision::FusedHand`; \
+         the guard fixed beforehand). The last row picks strict fraction, guard and window per fold \
+         on its training trials, where the fold's model is in-sample:\n",
+        a.guard
     );
     for s in &seeds {
-        let _ = writeln!(md, "- {}: {}", s.name, s.fused_picks.join("; "));
+        let _ = writeln!(md, "- {}: {}", s.name, s.tuned_picks.join("; "));
     }
     // Paired per grasp.
     let mut ids: Vec<(&str, bool)> = seeds
@@ -279,7 +313,7 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     );
     let _ = writeln!(
         md,
-        "| failure | rule | model ({}) | model − rule (mean, range) |\n|---|---:|---|---|",
+        "| failure | rule | model ({}) | model − rule (mean, range) | fused |\n|---|---:|---|---|---|",
         seeds
             .iter()
             .map(|s| s.name.as_str())
@@ -297,23 +331,33 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
             .iter()
             .map(|s| find(&s.model, id).and_then(|g| g.lead_ms()))
             .collect();
+        let fused: Vec<Option<f64>> = seeds
+            .iter()
+            .map(|s| find(&s.fused, id).and_then(|g| g.lead_ms()))
+            .collect();
         let diff: Vec<f64> = leads
             .iter()
             .map(|l| l.unwrap_or(0.0) - rule.unwrap_or(0.0))
             .collect();
         let _ = writeln!(
             md,
-            "| {id} | {} | {} | {} |",
+            "| {id} | {} | {} | {} | {} |",
             fmt_lead(rule),
             leads
                 .iter()
                 .map(|l| fmt_lead(*l))
                 .collect::<Vec<_>>()
                 .join(" / "),
-            mean_range(&diff, 0)
+            mean_range(&diff, 0),
+            fused
+                .iter()
+                .map(|l| fmt_lead(*l))
+                .collect::<Vec<_>>()
+                .join(" / "),
         );
         per_failure.push(serde_json::json!({
             "trial": id, "rule_lead_ms": rule, "model_lead_ms": leads, "model_minus_rule_ms": diff,
+            "fused_lead_ms": fused,
         }));
     }
     let _ = writeln!(
@@ -323,7 +367,7 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     );
     let _ = writeln!(
         md,
-        "| success | rule | model ({}) |\n|---|---|---|",
+        "| success | rule | model ({}) | fused |\n|---|---|---|---|",
         seeds
             .iter()
             .map(|s| s.name.as_str())
@@ -341,14 +385,19 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
             .iter()
             .map(|s| find(&s.model, id).is_some_and(|g| g.alarms() > 0))
             .collect();
+        let fused: Vec<bool> = seeds
+            .iter()
+            .map(|s| find(&s.fused, id).is_some_and(|g| g.alarms() > 0))
+            .collect();
         let _ = writeln!(
             md,
-            "| {id} | {} | {} |",
+            "| {id} | {} | {} | {} |",
             yn(rule),
-            model.iter().map(|&b| yn(b)).collect::<Vec<_>>().join(" / ")
+            model.iter().map(|&b| yn(b)).collect::<Vec<_>>().join(" / "),
+            fused.iter().map(|&b| yn(b)).collect::<Vec<_>>().join(" / ")
         );
         per_success.push(serde_json::json!({
-            "trial": id, "rule_alarm": rule, "model_alarm": model,
+            "trial": id, "rule_alarm": rule, "model_alarm": model, "fused_alarm": fused,
         }));
     }
     if !skipped.is_empty() {
@@ -363,7 +412,7 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     }
     if let Some(p) = &a.json {
         let v = serde_json::json!({
-            "summary": [j1, j2, j3],
+            "summary": [j1, j2, j3, j4],
             "per_failure": per_failure,
             "per_success": per_success,
             "skipped": skipped.iter().map(ToString::to_string).collect::<Vec<_>>(),
