@@ -972,3 +972,86 @@ pub fn armed_rows_for_blob(
     };
     Ok(armed_row(&p))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grasp(trial: &str, failure: bool, up: &[usize]) -> ArmedGrasp {
+        let mut flags = vec![false; 30];
+        for &i in up {
+            flags[i] = true;
+        }
+        ArmedGrasp {
+            trial: trial.into(),
+            failure,
+            start: 5,
+            end: 25,
+            flags,
+            step_ms: 60.0,
+        }
+    }
+
+    #[test]
+    fn the_rule_is_written_under_baseline_with_the_models_keys() {
+        let model = vec![grasp("f", true, &[10]), grasp("s", false, &[])];
+        let rule = vec![grasp("f", true, &[20]), grasp("s", false, &[12])];
+        let point = CurvePoint::of(0.4, 10, &rule);
+        let p = Product {
+            name: "m".into(),
+            in_sample: false,
+            hand: ArmedReport::of(&model),
+            channel: ArmedReport::of(&model),
+            curve: Vec::new(),
+            shipped: None,
+            paper_success_ci: None,
+            paper_ahead_ci: None,
+            rule: Some(RuleEval {
+                how: "leave one trial out".into(),
+                picks: String::new(),
+                per_fold: vec![(
+                    vec!["f".into()],
+                    slipguard_core::decision::LoadRule {
+                        fraction_q15: 13_107,
+                        window: 10,
+                    },
+                )],
+                grasps: rule.clone(),
+                report: ArmedReport::of(&rule),
+                point,
+                curve: vec![point],
+            }),
+        };
+        let v = product_json(&p, None);
+        let o = v.as_object().unwrap();
+        let armed: Vec<&str> = o
+            .keys()
+            .filter_map(|k| k.strip_prefix("armed."))
+            .filter(|k| !matches!(*k, "operating_curve" | "threshold" | "raise_after"))
+            .collect();
+        assert!(armed.contains(&"detected") && armed.contains(&"false_alarm_grasp_rate_ci"));
+        for k in &armed {
+            assert!(
+                o.contains_key(&format!("baseline.load_rule.armed.{k}")),
+                "baseline.load_rule.armed.{k} missing"
+            );
+        }
+        // The rule's own figures, not the model's: lead 5 steps · 60 ms, one false-alarm grasp.
+        assert_eq!(o["armed.leads_ms"], serde_json::json!([900.0]));
+        assert_eq!(
+            o["baseline.load_rule.armed.leads_ms"],
+            serde_json::json!([300.0])
+        );
+        assert_eq!(o["baseline.load_rule.armed.false_alarm_grasps"], 1);
+        assert_eq!(o["armed.false_alarm_grasps"], 0);
+        assert_eq!(o["baseline.load_rule.folds"][0]["window_frames"], 10);
+        // The table has the rule's row under the model's.
+        let rows = armed_row(&p);
+        assert!(
+            rows.lines()
+                .nth(2)
+                .unwrap()
+                .starts_with("| load rule beside m |")
+        );
+    }
+}
