@@ -278,6 +278,19 @@ pub enum FlagSource<'a> {
         /// The contact gate on that scale.
         contact: slipguard_core::decision::ContactConfig,
     },
+    /// The firmware with this model blob, its hand flag fused on the host with the hand-load
+    /// rule ([`slipguard_core::decision::FusedHand`]: the rule at its fraction, OR the model's
+    /// hand flag while the hand load is below the guard fraction of its peak).
+    Fused {
+        /// The model blob.
+        blob: &'a [u8],
+        /// Strict rule and guard.
+        fused: slipguard_core::decision::FusedHand,
+        /// The model's input scaling (mN → Q1.15).
+        scale: slipguard_core::sample::InputScale,
+        /// The contact gate on that scale.
+        contact: slipguard_core::decision::ContactConfig,
+    },
     /// Training-data teacher: the oracle's flags, each acted on with probability `act_prob`
     /// (slips caught late or not at all), so that recordings hold slips that recover as well
     /// as slips that end in a drop.
@@ -442,7 +455,7 @@ pub fn run_trial(
     let mut alarms = trial_rng(seed, 0xC0FF_EE02);
     let mut alarm_frames = 0u32;
     let mut app = match source {
-        FlagSource::Model(blob) => Some(App::new(profile, blob)),
+        FlagSource::Model(blob) | FlagSource::Fused { blob, .. } => Some(App::new(profile, blob)),
         _ => None,
     };
     let mut rule_state = slipguard_core::decision::LoadRuleState::new();
@@ -595,7 +608,7 @@ pub fn run_trial(
                     let n = protocol::encode(&f, &mut buf);
                     in_flight.push_back((deliver, buf[..n].to_vec()));
                 }
-                FlagSource::Model(_) => {
+                FlagSource::Model(_) | FlagSource::Fused { .. } => {
                     let app = app.as_mut().expect("app");
                     let mut bytes = Vec::new();
                     let mut commands: Vec<Command> = Vec::new();
@@ -629,7 +642,36 @@ pub fn run_trial(
                             bytes.extend_from_slice(&buf[..n]);
                         });
                     }
-                    if let Some(f) = app.frame(&input, false) {
+                    if let Some(mut f) = app.frame(&input, false) {
+                        if let (
+                            FlagSource::Fused {
+                                fused,
+                                scale,
+                                contact: gate,
+                                ..
+                            },
+                            Message::Flags(fl),
+                        ) = (source, &mut f.msg)
+                            && grasp_sent
+                        {
+                            let load = slipguard_core::decision::LoadRule::hand_load(
+                                rule_contact
+                                    .iter_mut()
+                                    .take(profile.channels)
+                                    .enumerate()
+                                    .map(|(c, st)| {
+                                        let x = scale
+                                            .to_q15(profile.to_model_units(input.value_q4[c], 0));
+                                        gate.update(st, x).in_contact().then_some(x)
+                                    }),
+                            );
+                            let up = fused.update(&mut rule_state, fl.hand_unstable(), load);
+                            fl.status = if up {
+                                fl.status | status::HAND_UNSTABLE
+                            } else {
+                                fl.status & !status::HAND_UNSTABLE
+                            };
+                        }
                         let n = protocol::encode(&f, &mut buf);
                         bytes.extend_from_slice(&buf[..n]);
                     }

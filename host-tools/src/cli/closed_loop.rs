@@ -75,6 +75,11 @@ pub struct Args {
     /// The hand-load rule's peak window (ms; frames at each rate, rounded).
     #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u32).range(1..=60_000))]
     pub rule_window_ms: u32,
+    /// Also run every model fused with the rule: the rule OR the model's hand flag while the
+    /// hand load is below this fraction of its peak (0 < g ≤ 1; host-side fusion of the
+    /// firmware's flags, `slipguard_core::decision::FusedHand`).
+    #[arg(long, value_parser = check::unit)]
+    pub fused_guard: Option<f64>,
     /// Leave the hand-load rule out.
     #[arg(long)]
     pub no_rule: bool,
@@ -101,6 +106,8 @@ struct Source {
     oracle: Option<usize>,
     /// Frame rate (mHz): the model's, for the oracle the rate it stands beside.
     rate_mhz: u32,
+    /// With a blob: fused with this rule and guard (Q0.15).
+    fused: Option<slipguard_core::decision::FusedHand>,
     /// The hand-load rule with the model's input scale and contact gate at that rate.
     rule: Option<(
         slipguard_core::decision::LoadRule,
@@ -152,6 +159,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         oracle: None,
         rate_mhz: default_rate,
         rule: None,
+        fused: None,
     }];
     let mut rates = Vec::new();
     let mut rule_sources = Vec::new();
@@ -177,6 +185,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     blob: None,
                     oracle: None,
                     rate_mhz,
+                    fused: None,
                     rule: Some((
                         rule,
                         slipguard_core::sample::InputScale::of(c),
@@ -189,11 +198,37 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             name: m.file_name().map_or(m.display().to_string(), |s| {
                 s.to_string_lossy().into_owned()
             }),
-            blob: Some(blob),
+            blob: Some(blob.clone()),
             oracle: None,
             rate_mhz,
             rule: None,
+            fused: None,
         });
+        if let (Some(g), Some(c)) = (a.fused_guard, cfg.as_ref()) {
+            let f = slipguard_learn::load_rule::fused(
+                a.rule_fraction,
+                g,
+                a.rule_window_ms as f64 / 1000.0,
+                1e6 / rate_mhz as f64,
+            );
+            sources.push(Source {
+                name: format!(
+                    "{} fused (rule OR flag under {g:.2}·peak)",
+                    m.file_name().map_or(m.display().to_string(), |s| s
+                        .to_string_lossy()
+                        .into_owned())
+                ),
+                blob: Some(blob),
+                oracle: None,
+                rate_mhz,
+                fused: Some(f),
+                rule: Some((
+                    f.strict,
+                    slipguard_core::sample::InputScale::of(c),
+                    slipguard_core::decision::ContactConfig::of(c),
+                )),
+            });
+        }
     }
     sources.extend(rule_sources);
     if rates.is_empty() {
@@ -215,6 +250,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     oracle: Some(delay),
                     rate_mhz,
                     rule: None,
+                    fused: None,
                 });
             }
         }
@@ -284,6 +320,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let mut results: Vec<(String, Vec<Outcome>)> = Vec::new();
         for s in &sources {
             let src = match (&s.blob, s.oracle, s.rule) {
+                (Some(b), _, Some((_, scale, contact))) if s.fused.is_some() => FlagSource::Fused {
+                    blob: b.as_bytes(),
+                    fused: s.fused.expect("fused"),
+                    scale,
+                    contact,
+                },
                 (Some(b), _, _) => FlagSource::Model(b.as_bytes()),
                 (None, Some(delay_frames), _) => FlagSource::Oracle { delay_frames },
                 (None, None, Some((rule, scale, contact))) => FlagSource::LoadRule {
