@@ -233,7 +233,13 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         !a.runs.is_empty(),
         "no runs: pass CV folders (one per training seed) or --seeds 1,2,3 --out DIR -- <train options>"
     );
-    let groups = eval::resolve(&a.runs, false)?;
+    let mut groups = eval::resolve(&a.runs, false)?;
+    if groups.len() == a.runs.len() {
+        // One group per folder: named by its path, which tells the seeds apart.
+        for (g, p) in groups.iter_mut().zip(&a.runs) {
+            g.name = p.display().to_string();
+        }
+    }
     let (_, all) = load_real_trials(a.data.as_deref())?;
     let refs: Vec<&Trial> = all.iter().collect();
     let (keep, skipped) = product::scoreable(&refs, &LabelConfig::default())?;
