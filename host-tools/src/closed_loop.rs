@@ -268,6 +268,31 @@ pub enum FlagSource<'a> {
         /// Frames between the slip state and the frame that reports it.
         delay_frames: usize,
     },
+    /// The hand-load rule ([`slipguard_core::decision::LoadRule`]) on the frames' model inputs
+    /// behind the core's contact gate, from grasp start, flags sent like the firmware's (the
+    /// same latency, though the rule costs a few hundred cycles where the model's frame costs
+    /// the modelled inference).
+    LoadRule {
+        /// Fraction and window (frames at the source's rate).
+        rule: slipguard_core::decision::LoadRule,
+        /// The model's input scaling (mN → Q1.15).
+        scale: slipguard_core::sample::InputScale,
+        /// The contact gate on that scale.
+        contact: slipguard_core::decision::ContactConfig,
+    },
+    /// The firmware with this model blob, its hand flag fused on the host with the hand-load
+    /// rule ([`slipguard_core::decision::FusedHand`]: the rule at its fraction, OR the model's
+    /// hand flag while the hand load is below the guard fraction of its peak).
+    Fused {
+        /// The model blob.
+        blob: &'a [u8],
+        /// Strict rule and guard.
+        fused: slipguard_core::decision::FusedHand,
+        /// The model's input scaling (mN → Q1.15).
+        scale: slipguard_core::sample::InputScale,
+        /// The contact gate on that scale.
+        contact: slipguard_core::decision::ContactConfig,
+    },
     /// Training-data teacher: the oracle's flags, each acted on with probability `act_prob`
     /// (slips caught late or not at all), so that recordings hold slips that recover as well
     /// as slips that end in a drop.
@@ -381,6 +406,28 @@ fn code(profile: &Profile, mn: f64, rng: &mut ChaCha8Rng) -> u16 {
     c.clamp(0, profile.adc_max as i32) as u16
 }
 
+/// A flag frame of a detector that has only the hand flag (oracle, teacher, load rule): armed,
+/// the hand flag (and channel 0's bit) as given.
+fn flags_frame(seq: u16, unstable: bool) -> Frame {
+    Frame {
+        seq,
+        msg: Message::Flags(protocol::Flags {
+            timestamp_us: 0,
+            status: if unstable {
+                status::ARMED | status::HAND_UNSTABLE
+            } else {
+                status::ARMED
+            },
+            channels: 16,
+            unstable: if unstable { 1 } else { 0 },
+            fault: 0,
+            overruns: 0,
+            skipped: 0,
+            p: [0; 16],
+        }),
+    }
+}
+
 /// Runs one trial: `grip_override` replaces the controller by a constant commanded grip (used
 /// to find the minimum grip needed).
 pub fn run_trial(
@@ -410,9 +457,11 @@ pub fn run_trial(
     let mut alarms = trial_rng(seed, 0xC0FF_EE02);
     let mut alarm_frames = 0u32;
     let mut app = match source {
-        FlagSource::Model(blob) => Some(App::new(profile, blob)),
+        FlagSource::Model(blob) | FlagSource::Fused { blob, .. } => Some(App::new(profile, blob)),
         _ => None,
     };
+    let mut rule_state = slipguard_core::decision::LoadRuleState::new();
+    let mut rule_contact = [slipguard_core::decision::ContactState::new(); MAX_CHANNELS];
     let mut frontend = Frontend::new(profile);
     let mut device_rx = Deframer::new();
     let mut ctl_rx = Deframer::new();
@@ -517,6 +566,30 @@ pub fn run_trial(
             let deliver = t + ctl.latency.delay_s(period_s);
             match source {
                 FlagSource::Off => {}
+                FlagSource::LoadRule {
+                    rule,
+                    scale,
+                    contact: gate,
+                } => {
+                    // The firmware resets at grasp start, sent when the fingers touch.
+                    if t < T_CONTACT_S {
+                        continue;
+                    }
+                    let load = slipguard_core::decision::LoadRule::hand_load(
+                        rule_contact
+                            .iter_mut()
+                            .take(profile.channels)
+                            .enumerate()
+                            .map(|(c, st)| {
+                                let x = scale.to_q15(profile.to_model_units(input.value_q4[c], 0));
+                                gate.update(st, x).in_contact().then_some(x)
+                            }),
+                    );
+                    let unstable = rule.update(&mut rule_state, load);
+                    let f = flags_frame(input.index as u16, unstable);
+                    let n = protocol::encode(&f, &mut buf);
+                    in_flight.push_back((deliver, buf[..n].to_vec()));
+                }
                 FlagSource::Oracle { .. } | FlagSource::Teacher { .. } => {
                     // The frame just recorded is the newest; a late oracle looks `delay` back.
                     let n = out.frames.len();
@@ -533,27 +606,11 @@ pub fn run_trial(
                         && (false_alarm
                             || n > oracle_delay
                                 && out.frames[n - 1 - oracle_delay].rho >= RHO_STICK_SLIP);
-                    let f = Frame {
-                        seq: input.index as u16,
-                        msg: Message::Flags(protocol::Flags {
-                            timestamp_us: 0,
-                            status: if unstable {
-                                status::ARMED | status::HAND_UNSTABLE
-                            } else {
-                                status::ARMED
-                            },
-                            channels: 16,
-                            unstable: if unstable { 1 } else { 0 },
-                            fault: 0,
-                            overruns: 0,
-                            skipped: 0,
-                            p: [0; 16],
-                        }),
-                    };
+                    let f = flags_frame(input.index as u16, unstable);
                     let n = protocol::encode(&f, &mut buf);
                     in_flight.push_back((deliver, buf[..n].to_vec()));
                 }
-                FlagSource::Model(_) => {
+                FlagSource::Model(_) | FlagSource::Fused { .. } => {
                     let app = app.as_mut().expect("app");
                     let mut bytes = Vec::new();
                     let mut commands: Vec<Command> = Vec::new();
@@ -587,7 +644,36 @@ pub fn run_trial(
                             bytes.extend_from_slice(&buf[..n]);
                         });
                     }
-                    if let Some(f) = app.frame(&input, false) {
+                    if let Some(mut f) = app.frame(&input, false) {
+                        if let (
+                            FlagSource::Fused {
+                                fused,
+                                scale,
+                                contact: gate,
+                                ..
+                            },
+                            Message::Flags(fl),
+                        ) = (source, &mut f.msg)
+                            && grasp_sent
+                        {
+                            let load = slipguard_core::decision::LoadRule::hand_load(
+                                rule_contact
+                                    .iter_mut()
+                                    .take(profile.channels)
+                                    .enumerate()
+                                    .map(|(c, st)| {
+                                        let x = scale
+                                            .to_q15(profile.to_model_units(input.value_q4[c], 0));
+                                        gate.update(st, x).in_contact().then_some(x)
+                                    }),
+                            );
+                            let up = fused.update(&mut rule_state, fl.hand_unstable(), load);
+                            fl.status = if up {
+                                fl.status | status::HAND_UNSTABLE
+                            } else {
+                                fl.status & !status::HAND_UNSTABLE
+                            };
+                        }
                         let n = protocol::encode(&f, &mut buf);
                         bytes.extend_from_slice(&buf[..n]);
                     }

@@ -632,12 +632,31 @@ pub fn plot_operating_curve(
     title: &str,
     path: &Path,
 ) -> Result<()> {
-    draw_operating_curve(curve, shipped, title, path).map_err(|e| perr(path, e))
+    draw_operating_curve(curve, shipped, None, title, path).map_err(|e| perr(path, e))
+}
+
+/// [`plot_operating_curve`] with the hand-load rule beside it: its curve over the fractions
+/// (grey) and its held-out point (a diamond).
+pub fn plot_operating_curve_with_rule(
+    curve: &[slipguard_learn::product::CurvePoint],
+    shipped: Option<&slipguard_learn::product::CurvePoint>,
+    rule: Option<(
+        &[slipguard_learn::product::CurvePoint],
+        &slipguard_learn::product::CurvePoint,
+    )>,
+    title: &str,
+    path: &Path,
+) -> Result<()> {
+    draw_operating_curve(curve, shipped, rule, title, path).map_err(|e| perr(path, e))
 }
 
 fn draw_operating_curve(
     curve: &[slipguard_learn::product::CurvePoint],
     shipped: Option<&slipguard_learn::product::CurvePoint>,
+    rule: Option<(
+        &[slipguard_learn::product::CurvePoint],
+        &slipguard_learn::product::CurvePoint,
+    )>,
     title: &str,
     path: &Path,
 ) -> std::result::Result<(), Box<dyn std::error::Error>> {
@@ -672,6 +691,29 @@ fn draw_operating_curve(
             .label(format!("raise after {r}"))
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], c.stroke_width(2)));
         chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))?;
+    }
+    if let Some((rc, rp)) = rule {
+        let grey = RGBColor(120, 120, 120);
+        let pts: Vec<(f64, f64)> = rc
+            .iter()
+            .map(|p| (p.false_alarm_grasp_rate, p.detected_rate))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(pts.iter().copied(), grey.stroke_width(2)))?
+            .label("load rule, fractions 0.2–0.8 (0.6 s window)")
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 14, y)], grey.stroke_width(2)));
+        let p = (rp.false_alarm_grasp_rate, rp.detected_rate);
+        let diamond = |(x, y): (f64, f64)| {
+            EmptyElement::at((x, y))
+                + Polygon::new(
+                    vec![(0, -8), (8, 0), (0, 8), (-8, 0)],
+                    RGBColor(200, 0, 0).filled(),
+                )
+        };
+        chart
+            .draw_series(std::iter::once(diamond(p)))?
+            .label("load rule, held out (parameters picked on training trials)")
+            .legend(|(x, y)| Circle::new((x + 7, y), 4, RGBColor(200, 0, 0).filled()));
     }
     if let Some(s) = shipped {
         let p = (s.false_alarm_grasp_rate, s.detected_rate);

@@ -1,7 +1,8 @@
 //! slipguard learning: the paper's LSTM variants trained with candle ([`train`]) and fine-tuned
 //! with the blob's arithmetic ([`qat`]), float
 //! checkpoints in safetensors ([`checkpoint`]), the paper's Table I baselines
-//! ([`baselines`]) and the evaluation of float and quantized models ([`evaluation`]).
+//! ([`baselines`]), the hand-load rule every hand flag is measured against ([`load_rule`]) and
+//! the evaluation of float and quantized models ([`evaluation`]).
 //!
 //! Errors are [`error::LearnError`] (candle's and the data layer's wrapped).
 
@@ -10,6 +11,7 @@ pub mod baselines;
 pub mod checkpoint;
 pub mod error;
 pub mod evaluation;
+pub mod load_rule;
 pub mod product;
 #[cfg(feature = "train")]
 pub mod qat;

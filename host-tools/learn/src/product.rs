@@ -212,6 +212,29 @@ pub fn armed_window(
     Ok(Some((lift.min(end), end)))
 }
 
+/// The trials that can be scored in their armed window, and those skipped with the reason:
+/// a failure with no drop in its force, and a trial without a lift mark while another trial
+/// with contact has one, are skipped (named, not refusing the data set); without any lift
+/// mark, or with an unknown outcome, the first such trial is the error.
+pub fn scoreable<'t>(
+    trials: &[&'t Trial],
+    cfg: &LabelConfig,
+) -> Result<(Vec<&'t Trial>, Vec<ArmedError>), ArmedError> {
+    let any_lift = trials
+        .iter()
+        .any(|t| t.contact.iter().any(|&c| c) && t.marks.lift_start.is_some());
+    let (mut keep, mut skipped) = (Vec::new(), Vec::new());
+    for &t in trials {
+        match armed_window(t, cfg) {
+            Ok(_) => keep.push(t),
+            Err(e @ ArmedError::NoDrop { .. }) => skipped.push(e),
+            Err(e @ ArmedError::NoLiftMark { .. }) if any_lift => skipped.push(e),
+            Err(e) => return Err(e),
+        }
+    }
+    Ok((keep, skipped))
+}
+
 /// The grasp scored on its hand flag, and each contact channel scored on its own flag.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScoredGrasp {
@@ -416,14 +439,7 @@ pub fn operating_curve(
 /// with a false alarm; points over `max_false_alarm_rate` lose a further penalty of their
 /// excess; ties go to fewer false-alarm grasps, then to the threshold nearest 0.5.
 pub fn pick_decision(curve: &[CurvePoint], max_false_alarm_rate: f64) -> Option<CurvePoint> {
-    let score = |p: &CurvePoint| {
-        let det = if p.failures > 0 {
-            p.detected_300ms as f64 / p.failures as f64
-        } else {
-            0.0
-        };
-        det - p.false_alarm_grasp_rate - (p.false_alarm_grasp_rate - max_false_alarm_rate).max(0.0)
-    };
+    let score = |p: &CurvePoint| pick_score(p, max_false_alarm_rate);
     curve
         .iter()
         .max_by(|a, b| {
@@ -437,6 +453,17 @@ pub fn pick_decision(curve: &[CurvePoint], max_false_alarm_rate: f64) -> Option<
                 )
         })
         .copied()
+}
+
+/// The score [`pick_decision`] maximises: share of failures detected ≥ 300 ms ahead − share of
+/// successes with a false alarm − the excess of that share over `max_false_alarm_rate`.
+pub fn pick_score(p: &CurvePoint, max_false_alarm_rate: f64) -> f64 {
+    let det = if p.failures > 0 {
+        p.detected_300ms as f64 / p.failures as f64
+    } else {
+        0.0
+    };
+    det - p.false_alarm_grasp_rate - (p.false_alarm_grasp_rate - max_false_alarm_rate).max(0.0)
 }
 
 /// Cuts labelled sequences (which start at the grasp start) to where the firmware's model
@@ -518,4 +545,56 @@ pub fn bootstrap_paper(
         lo: slipguard_data::metrics::quantile(&values, 0.025),
         hi: slipguard_data::metrics::quantile(&values, 0.975),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use slipguard_data::trial::Unit;
+
+    fn trial(id: &str, outcome: Outcome, lift: Option<usize>, drop: Option<usize>) -> Trial {
+        let mut t = Trial::new(id, Unit::MilliNewton, 16.7, vec![vec![1000.0; 40]]);
+        t.outcome = outcome;
+        t.marks.lift_start = lift;
+        t.drop_step = drop;
+        t
+    }
+
+    #[test]
+    fn unscoreable_trials_are_skipped_and_named() {
+        let cfg = LabelConfig::default();
+        let ok_f = trial("f", Outcome::Failure, Some(5), Some(30));
+        let ok_s = trial("s", Outcome::Success, Some(5), None);
+        let no_drop = trial("nodrop", Outcome::Failure, Some(5), None);
+        let no_lift = trial("nolift", Outcome::Success, None, None);
+        let all = [&ok_f, &ok_s, &no_drop, &no_lift];
+        let (keep, skipped) = scoreable(&all, &cfg).unwrap();
+        let kept: Vec<&str> = keep.iter().map(|t| t.id.as_str()).collect();
+        assert_eq!(kept, ["f", "s"]);
+        assert_eq!(
+            skipped,
+            [
+                ArmedError::NoDrop {
+                    trial: "nodrop".into()
+                },
+                ArmedError::NoLiftMark {
+                    trial: "nolift".into()
+                }
+            ]
+        );
+        assert!(skipped[0].to_string().starts_with("nodrop: "));
+        // Without any lift mark the data set cannot be scored: the first trial is the error.
+        let a = trial("a", Outcome::Success, None, None);
+        let b = trial("b", Outcome::Failure, None, Some(20));
+        assert_eq!(
+            scoreable(&[&a, &b], &cfg).unwrap_err(),
+            ArmedError::NoLiftMark { trial: "a".into() }
+        );
+        // An unknown outcome stays an error.
+        let u = trial("u", Outcome::Unknown, Some(5), None);
+        assert!(matches!(
+            scoreable(&[&ok_f, &u], &cfg),
+            Err(ArmedError::UnknownOutcome { .. })
+        ));
+    }
 }

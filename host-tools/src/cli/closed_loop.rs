@@ -68,6 +68,21 @@ pub struct Args {
     /// unit not the hand profile's) after a warning, instead of stopping.
     #[arg(long)]
     pub allow_bad_model: bool,
+    /// The hand-load rule beside the models, at each model's rate: its fraction of the recent
+    /// peak (0 < f < 1; default: the pick on the real trials, docs/results.md).
+    #[arg(long, default_value_t = 0.4, value_parser = check::open_unit)]
+    pub rule_fraction: f64,
+    /// The hand-load rule's peak window (ms; frames at each rate, rounded).
+    #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u32).range(1..=60_000))]
+    pub rule_window_ms: u32,
+    /// Also run every model fused with the rule: the rule OR the model's hand flag while the
+    /// hand load is below this fraction of its peak (0 < g ≤ 1; host-side fusion of the
+    /// firmware's flags, `slipguard_core::decision::FusedHand`).
+    #[arg(long, value_parser = check::unit)]
+    pub fused_guard: Option<f64>,
+    /// Leave the hand-load rule out.
+    #[arg(long)]
+    pub no_rule: bool,
     /// When a frame's flags reach the controller: `firmware` = as the firmware runs (modelled
     /// inference of a 16-channel frame, 11.3 ms, + 0.61 ms on the wire); `deadline` = the bound
     /// the protocol guarantees (one period + 0.61 ms).
@@ -91,6 +106,14 @@ struct Source {
     oracle: Option<usize>,
     /// Frame rate (mHz): the model's, for the oracle the rate it stands beside.
     rate_mhz: u32,
+    /// With a blob: fused with this rule and guard (Q0.15).
+    fused: Option<slipguard_core::decision::FusedHand>,
+    /// The hand-load rule with the model's input scale and contact gate at that rate.
+    rule: Option<(
+        slipguard_core::decision::LoadRule,
+        slipguard_core::sample::InputScale,
+        slipguard_core::decision::ContactConfig,
+    )>,
 }
 
 /// Every scenario in the loop, in parallel on `pool`, the outcomes in the scenarios' order.
@@ -135,24 +158,79 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         blob: None,
         oracle: None,
         rate_mhz: default_rate,
+        rule: None,
+        fused: None,
     }];
     let mut rates = Vec::new();
+    let mut rule_sources = Vec::new();
     for m in &models {
         // A blob the firmware refuses runs only with --allow-bad-model (fault frames only).
         let (blob, cfg) = check::load_model("closed-loop", m, &Profile::HAND, a.allow_bad_model)?;
         let rate_mhz = cfg.map_or(default_rate, |c| c.sample_rate_mhz);
         if !rates.contains(&rate_mhz) {
             rates.push(rate_mhz);
+            if let (false, Some(c)) = (a.no_rule, cfg.as_ref()) {
+                let rule = slipguard_learn::load_rule::rule(
+                    a.rule_fraction,
+                    a.rule_window_ms as f64 / 1000.0,
+                    1e6 / rate_mhz as f64,
+                );
+                rule_sources.push(Source {
+                    name: format!(
+                        "load rule {} Hz (< {:.2} of the peak over {} frames)",
+                        rate_mhz as f64 / 1000.0,
+                        a.rule_fraction,
+                        rule.window
+                    ),
+                    blob: None,
+                    oracle: None,
+                    rate_mhz,
+                    fused: None,
+                    rule: Some((
+                        rule,
+                        slipguard_core::sample::InputScale::of(c),
+                        slipguard_core::decision::ContactConfig::of(c),
+                    )),
+                });
+            }
         }
         sources.push(Source {
             name: m.file_name().map_or(m.display().to_string(), |s| {
                 s.to_string_lossy().into_owned()
             }),
-            blob: Some(blob),
+            blob: Some(blob.clone()),
             oracle: None,
             rate_mhz,
+            rule: None,
+            fused: None,
         });
+        if let (Some(g), Some(c)) = (a.fused_guard, cfg.as_ref()) {
+            let f = slipguard_learn::load_rule::fused(
+                a.rule_fraction,
+                g,
+                a.rule_window_ms as f64 / 1000.0,
+                1e6 / rate_mhz as f64,
+            );
+            sources.push(Source {
+                name: format!(
+                    "{} fused (rule OR flag under {g:.2}·peak)",
+                    m.file_name().map_or(m.display().to_string(), |s| s
+                        .to_string_lossy()
+                        .into_owned())
+                ),
+                blob: Some(blob),
+                oracle: None,
+                rate_mhz,
+                fused: Some(f),
+                rule: Some((
+                    f.strict,
+                    slipguard_core::sample::InputScale::of(c),
+                    slipguard_core::decision::ContactConfig::of(c),
+                )),
+            });
+        }
     }
+    sources.extend(rule_sources);
     if rates.is_empty() {
         rates.push(default_rate);
     }
@@ -171,6 +249,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     blob: None,
                     oracle: Some(delay),
                     rate_mhz,
+                    rule: None,
+                    fused: None,
                 });
             }
         }
@@ -239,9 +319,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let min: Vec<f64> = scenarios.iter().map(|s| min_grip_needed(s, &ctl)).collect();
         let mut results: Vec<(String, Vec<Outcome>)> = Vec::new();
         for s in &sources {
-            let src = match (&s.blob, s.oracle) {
-                (Some(b), _) => FlagSource::Model(b.as_bytes()),
-                (None, Some(delay_frames)) => FlagSource::Oracle { delay_frames },
+            let src = match (&s.blob, s.oracle, s.rule) {
+                (Some(b), _, Some((_, scale, contact))) if s.fused.is_some() => FlagSource::Fused {
+                    blob: b.as_bytes(),
+                    fused: s.fused.expect("fused"),
+                    scale,
+                    contact,
+                },
+                (Some(b), _, _) => FlagSource::Model(b.as_bytes()),
+                (None, Some(delay_frames), _) => FlagSource::Oracle { delay_frames },
+                (None, None, Some((rule, scale, contact))) => FlagSource::LoadRule {
+                    rule,
+                    scale,
+                    contact,
+                },
                 _ => FlagSource::Off,
             };
             let ctl = ControllerConfig {

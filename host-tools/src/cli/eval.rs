@@ -198,7 +198,8 @@ pub fn resolve(paths: &[PathBuf], allow_bad: bool) -> anyhow::Result<Vec<Group>>
     Ok(out)
 }
 
-fn heldout(ck: &Checkpoint) -> Option<Vec<String>> {
+/// A fold checkpoint's held-out trials.
+pub fn heldout(ck: &Checkpoint) -> Option<Vec<String>> {
     ck.extra
         .get("heldout_trials")
         .map(|s| s.split(',').map(str::to_string).collect())
@@ -327,19 +328,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     } else {
         load_real_trials(a.data.as_deref())?.1
     };
-    // The paper's metrics on the sequences the firmware's model state sees: from each
-    // channel's contact onset (the 16.7 Hz force rule).
-    let force_rule = OnsetRule::of(&slipguard_learn::evaluation::force_config(
-        slipguard_core::blob::Variant::Force,
-        false,
-        1,
-        "",
-        PAPER_RATE_MHZ,
-    ));
-    let real = product::cut_to_contact(
-        sequences_of(&real_trials, &LabelConfig::default()),
-        &force_rule,
-    );
+    let force_rule = force_onset_rule();
+    let real = real_sequences(&real_trials);
     let needs = |u: InputUnit| {
         groups.iter().any(|g| {
             g.members
@@ -366,6 +356,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     } else {
         Vec::new()
     };
+    // Trials the armed window cannot score (a failure with no drop in its force; no lift mark
+    // while others have one) are skipped and named, not refusing the data set.
+    let (scored_trials, skipped) = {
+        let refs: Vec<&Trial> = real_trials.iter().collect();
+        let (keep, skipped) = product::scoreable(&refs, &LabelConfig::default())?;
+        let keep: Vec<Trial> = keep.into_iter().cloned().collect();
+        (keep, skipped)
+    };
+    for e in &skipped {
+        eprintln!("eval: skipped {e}");
+    }
     let calib_suction = sim_suction_sequences(999, 16, 0.3);
     let plots = a.plots.as_deref().map(|d| (d, a.plot_count));
     let kinds = [Kind::Float, Kind::Quantized];
@@ -396,7 +397,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     &kinds,
                 )?);
                 notes.extend(heldout_lines(g));
-                products.push(product_eval(g, &real_trials, &real, &calib, cv)?);
+                products.push(product_eval(g, &scored_trials, &real, &calib, cv)?);
             }
             if !sim_f.is_empty() {
                 // CV groups: fold 0 stands for the recipe on simulated data.
@@ -446,6 +447,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             text.push('\n');
         }
         text.push_str(ARMED_NOTE);
+        text.push_str(RULE_NOTE);
+        for p in &products {
+            if let Some(r) = &p.rule {
+                text.push_str(&format!(
+                    "\n\n{}: load rule picked {}: {}.",
+                    p.name, r.how, r.picks
+                ));
+            }
+        }
+        if !skipped.is_empty() {
+            text.push_str("\n\nSkipped (not scored in the armed window):\n");
+            for e in &skipped {
+                text.push_str(&format!("\n- {e}"));
+            }
+        }
         text.push_str("\n\nThe paper's metrics (per channel, from each channel's contact onset to the end of the 160-step window):\n\n");
     }
     for p in &products {
@@ -486,9 +502,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 })
                 .collect();
             let path = d.join(format!("operating-curve-{slug}.png"));
-            slipguard::plot::plot_operating_curve(
+            slipguard::plot::plot_operating_curve_with_rule(
                 &p.curve,
                 p.shipped.as_ref(),
+                p.rule.as_ref().map(|r| (r.curve.as_slice(), &r.point)),
                 &format!(
                     "{}: hand level, armed window, {} grasps",
                     p.name, p.hand.metrics.grasps
@@ -505,7 +522,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 let q = rows.iter().find(|r| {
                     r.model == p.name && r.kind == Kind::Quantized && r.data.starts_with("real")
                 });
-                product_json(p, q)
+                let mut v = product_json(p, q);
+                if let Some(o) = v.as_object_mut() {
+                    o.insert(
+                        "skipped".into(),
+                        serde_json::json!(
+                            skipped
+                                .iter()
+                                .map(|e| serde_json::json!({
+                                    "trial": skipped_trial(e),
+                                    "reason": e.to_string(),
+                                }))
+                                .collect::<Vec<_>>()
+                        ),
+                    );
+                }
+                v
             })
             .collect();
         let v = if objs.len() == 1 {
@@ -520,6 +552,46 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The contact onset rule of 16.7 Hz force models.
+fn force_onset_rule() -> OnsetRule {
+    OnsetRule::of(&slipguard_learn::evaluation::force_config(
+        slipguard_core::blob::Variant::Force,
+        false,
+        1,
+        "",
+        PAPER_RATE_MHZ,
+    ))
+}
+
+/// The paper's metrics' sequences of real trials as the firmware's model state sees them: from
+/// each channel's contact onset (the 16.7 Hz force rule).
+pub fn real_sequences(trials: &[Trial]) -> Vec<Sequence> {
+    product::cut_to_contact(
+        sequences_of(trials, &LabelConfig::default()),
+        &force_onset_rule(),
+    )
+}
+
+/// The blob of a member: its own, or the checkpoint quantized with up to 64 real sequences
+/// outside its held-out trials as calibration (what `eval` does).
+pub fn member_blob(
+    ck: &Checkpoint,
+    blob: Option<&Vec<u8>>,
+    real: &[Sequence],
+) -> anyhow::Result<Vec<u8>> {
+    if let Some(b) = blob {
+        return Ok(b.clone());
+    }
+    let h = heldout(ck).unwrap_or_default();
+    let c: Vec<&[f32]> = real
+        .iter()
+        .filter(|s| !h.contains(&s.cs.trial_id))
+        .take(64)
+        .map(|s| s.cs.samples.as_slice())
+        .collect();
+    Ok(quantize_model(&ck.model, &c)?)
+}
+
 /// A model's figures on the real trials as the product is used: the quantized model, hand
 /// level and per channel, in the armed window, with bootstrap intervals; the paper's two
 /// metrics with theirs; and the operating curve.
@@ -532,6 +604,93 @@ pub struct Product {
     pub shipped: Option<CurvePoint>,
     pub paper_success_ci: Option<slipguard_data::armed::Interval>,
     pub paper_ahead_ci: Option<slipguard_data::armed::Interval>,
+    /// The hand-load rule on the same trials, its parameters picked on training trials only.
+    pub rule: Option<RuleEval>,
+}
+
+/// The hand-load rule beside a model: held out as the model is.
+pub struct RuleEval {
+    /// "by the model's folds (…)" or "leave one trial out".
+    pub how: String,
+    /// The picked parameters, summarised.
+    pub picks: String,
+    /// Per held-out group: its trials and the rule.
+    pub per_fold: Vec<(Vec<String>, slipguard_core::decision::LoadRule)>,
+    /// Held-out grasps, each scored with its fold's rule.
+    pub grasps: Vec<ArmedGrasp>,
+    /// Held-out figures.
+    pub report: ArmedReport,
+    /// Its point on the operating curve.
+    pub point: CurvePoint,
+    /// The rule's own curve: the fractions at a 0.6 s window, on all scored trials.
+    pub curve: Vec<CurvePoint>,
+}
+
+/// The trial an armed-window error names.
+fn skipped_trial(e: &product::ArmedError) -> String {
+    match e {
+        product::ArmedError::NoLiftMark { trial }
+        | product::ArmedError::NoDrop { trial }
+        | product::ArmedError::UnknownOutcome { trial } => trial.clone(),
+        _ => String::new(),
+    }
+}
+
+/// The rule held out as a model is: per fold on the fold's training trials (`folds`: each
+/// fold's held-out trials), else leave one trial out; the model's input scale and contact gate.
+pub fn rule_eval(
+    trials: &[Trial],
+    config: &slipguard_core::blob::ModelConfig,
+    folds: Option<&[Vec<String>]>,
+) -> anyhow::Result<RuleEval> {
+    use slipguard_learn::load_rule;
+    let refs: Vec<&Trial> = trials.iter().collect();
+    let scale = slipguard_core::sample::InputScale::of(config);
+    let contact = slipguard_core::decision::ContactConfig::of(config);
+    let runs = load_rule::load_runs(&refs, &scale, &contact, &LabelConfig::default())?;
+    let (h, how) = if let Some(folds) = folds {
+        (
+            load_rule::held_out_by_folds(&runs, folds),
+            format!(
+                "on each of the model's {} folds' training trials",
+                folds.len()
+            ),
+        )
+    } else {
+        (
+            load_rule::held_out_loto(&runs),
+            "leave one trial out (each trial with the rule picked on the others)".to_string(),
+        )
+    };
+    let report = ArmedReport::of(&h.grasps);
+    let first = h.picks.first().map(|(_, r)| *r);
+    let point = CurvePoint::of(
+        first.map_or(0.0, |r| load_rule::fraction(&r)),
+        first.map_or(0, |r| r.window),
+        &h.grasps,
+    );
+    let curve = load_rule::FRACTIONS
+        .iter()
+        .map(|&f| {
+            let grasps: Vec<ArmedGrasp> = runs
+                .iter()
+                .map(|r| r.grasp(&load_rule::rule(f, 0.6, r.step_ms)))
+                .collect();
+            let w = runs
+                .first()
+                .map_or(0, |r| load_rule::rule(f, 0.6, r.step_ms).window);
+            CurvePoint::of(f, w, &grasps)
+        })
+        .collect();
+    Ok(RuleEval {
+        how,
+        picks: load_rule::picks_summary(&h),
+        per_fold: h.picks,
+        grasps: h.grasps,
+        report,
+        point,
+        curve,
+    })
 }
 
 fn product_eval(
@@ -600,6 +759,18 @@ fn product_eval(
             curve.push(CurvePoint::of(th, r, &grasps));
         }
     }
+    let rule = match g.members.first() {
+        Some((ck, _)) => {
+            let folds: Vec<Vec<String>> =
+                g.members.iter().filter_map(|(ck, _)| heldout(ck)).collect();
+            Some(rule_eval(
+                trials,
+                &ck.model.config,
+                cv.then_some(folds.as_slice()),
+            )?)
+        }
+        None => None,
+    };
     let shipped = g.members.first().map(|(ck, _)| {
         let c = &ck.model.config;
         CurvePoint::of(Q15(c.threshold_q15 as i16).to_f64(), c.raise_after, &hand)
@@ -613,11 +784,19 @@ fn product_eval(
         shipped,
         paper_success_ci: product::bootstrap_paper(&seqs, &preds, 5, |m| m.success_rate),
         paper_ahead_ci: product::bootstrap_paper(&seqs, &preds, 6, |m| m.ahead_drop_rate),
+        rule,
     })
 }
 
 /// Header of the armed-window table.
 pub const ARMED_HEADER: &str = "| model | data | level | grasps (fail) | detected | lead median | false-alarm grasps | false alarms / armed min |\n|---|---|---|---|---|---|---|---|";
+
+/// What the load-rule row means.
+pub const RULE_NOTE: &str = " load rule = the baseline that learns nothing \
+(`slipguard_core::decision::LoadRule`): the hand flag is up while the summed load of the channels \
+in contact is below a fraction of its peak over the last frames; fraction (0.20–0.80) and window \
+(0.3–1.2 s) picked on training trials only, by the models' decision criterion, and scored on the \
+same held-out trials as the model beside it.";
 
 /// What the armed-window columns mean.
 pub const ARMED_NOTE: &str = "\nArmed window: from the lift start to the release start (successes, found from the force: \
@@ -629,35 +808,51 @@ hand flag (the firmware's decision over the channels in contact), channel = each
 own flag scored as a grasp.";
 
 fn armed_row(p: &Product) -> String {
-    let one = |level: &str, r: &ArmedReport| {
-        let m = &r.metrics;
-        let ci = |i: Option<slipguard_data::armed::Interval>| {
-            i.map_or(String::new(), |i| {
-                format!(" [{:.0}–{:.0} %]", 100.0 * i.lo, 100.0 * i.hi)
-            })
-        };
-        format!(
-            "| {} | {} | {level} | {} ({}) | {}/{}{} | {} | {}/{}{} | {:.2} |",
-            p.name,
-            if p.in_sample {
-                "real (all, in-sample)"
-            } else {
-                "real held-out"
-            },
-            m.grasps,
-            m.failures,
-            m.detected,
-            m.failures,
-            ci(r.detected_rate_ci),
-            m.lead_median_ms()
-                .map_or("-".into(), |l| format!("{l:.0} ms")),
-            m.false_alarm_grasps,
-            m.successes,
-            ci(r.false_alarm_grasp_rate_ci),
-            m.false_alarms_per_min().unwrap_or(0.0)
-        )
+    let data = if p.in_sample {
+        "real (all, in-sample)"
+    } else {
+        "real held-out"
     };
-    format!("{}\n{}", one("hand", &p.hand), one("channel", &p.channel))
+    let mut rows = format!(
+        "{}\n{}",
+        armed_line(&p.name, data, "hand", &p.hand),
+        armed_line(&p.name, data, "channel", &p.channel)
+    );
+    if let Some(r) = &p.rule {
+        rows.push('\n');
+        rows.push_str(&armed_line(
+            &format!("load rule beside {}", p.name),
+            "real held-out",
+            "hand",
+            &r.report,
+        ));
+    }
+    rows
+}
+
+/// One row of the armed-window table.
+fn armed_line(name: &str, data: &str, level: &str, r: &ArmedReport) -> String {
+    let m = &r.metrics;
+    let ci = |i: Option<slipguard_data::armed::Interval>| {
+        i.map_or(String::new(), |i| {
+            format!(" [{:.0}–{:.0} %]", 100.0 * i.lo, 100.0 * i.hi)
+        })
+    };
+    format!(
+        "| {name} | {data} | {level} | {} ({}) | {}/{}{} (≥ 300 ms ahead: {}) | {} | {}/{}{} | {:.2} |",
+        m.grasps,
+        m.failures,
+        m.detected,
+        m.failures,
+        ci(r.detected_rate_ci),
+        m.detected_with_lead(300.0),
+        m.lead_median_ms()
+            .map_or("-".into(), |l| format!("{l:.0} ms")),
+        m.false_alarm_grasps,
+        m.successes,
+        ci(r.false_alarm_grasp_rate_ci),
+        m.false_alarms_per_min().unwrap_or(0.0)
+    )
 }
 
 fn product_json(p: &Product, paper: Option<&Row>) -> serde_json::Value {
@@ -687,6 +882,39 @@ fn product_json(p: &Product, paper: Option<&Row>) -> serde_json::Value {
     }
     o.extend(p.hand.to_json("armed"));
     o.extend(p.channel.to_json("armed_channel"));
+    if let Some(r) = &p.rule {
+        o.extend(r.report.to_json("baseline.load_rule.armed"));
+        o.insert("baseline.load_rule.picked".into(), json!(r.how));
+        o.insert(
+            "baseline.load_rule.operating_curve".into(),
+            json!(
+                r.curve
+                    .iter()
+                    .map(|c| json!({
+                        "fraction": c.threshold,
+                        "window_frames": c.raise_after,
+                        "detected": c.detected_rate * c.failures as f64,
+                        "detected_300ms": c.detected_300ms,
+                        "false_alarm_grasps": c.false_alarm_grasps,
+                        "lead_median_ms": c.lead_median_ms,
+                    }))
+                    .collect::<Vec<_>>()
+            ),
+        );
+        o.insert(
+            "baseline.load_rule.folds".into(),
+            json!(
+                r.per_fold
+                    .iter()
+                    .map(|(t, rule)| json!({
+                        "heldout_trials": t,
+                        "fraction": slipguard_learn::load_rule::fraction(rule),
+                        "window_frames": rule.window,
+                    }))
+                    .collect::<Vec<_>>()
+            ),
+        );
+    }
     if let Some(s) = &p.shipped {
         o.insert("armed.threshold".into(), json!(s.threshold));
         o.insert("armed.raise_after".into(), json!(s.raise_after));
@@ -721,6 +949,8 @@ pub fn armed_rows_for_blob(
     let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
         .map_err(|e| anyhow::anyhow!("{name}: the model blob does not parse: {e}"))?;
     let refs: Vec<&Trial> = trials.iter().collect();
+    let (refs, _skipped) = product::scoreable(&refs, &cfg)?;
+    let kept: Vec<Trial> = refs.iter().map(|&t| t.clone()).collect();
     let (mut hand, mut channel) = (Vec::new(), Vec::new());
     for w in product::windowed_runs(&m, &refs, &cfg)? {
         if let Some(t) = trials.iter().find(|t| t.id == w.trial)
@@ -739,6 +969,90 @@ pub fn armed_rows_for_blob(
         shipped: None,
         paper_success_ci: None,
         paper_ahead_ci: None,
+        rule: Some(rule_eval(&kept, m.config(), None)?),
     };
     Ok(armed_row(&p))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grasp(trial: &str, failure: bool, up: &[usize]) -> ArmedGrasp {
+        let mut flags = vec![false; 30];
+        for &i in up {
+            flags[i] = true;
+        }
+        ArmedGrasp {
+            trial: trial.into(),
+            failure,
+            start: 5,
+            end: 25,
+            flags,
+            step_ms: 60.0,
+        }
+    }
+
+    #[test]
+    fn the_rule_is_written_under_baseline_with_the_models_keys() {
+        let model = vec![grasp("f", true, &[10]), grasp("s", false, &[])];
+        let rule = vec![grasp("f", true, &[20]), grasp("s", false, &[12])];
+        let point = CurvePoint::of(0.4, 10, &rule);
+        let p = Product {
+            name: "m".into(),
+            in_sample: false,
+            hand: ArmedReport::of(&model),
+            channel: ArmedReport::of(&model),
+            curve: Vec::new(),
+            shipped: None,
+            paper_success_ci: None,
+            paper_ahead_ci: None,
+            rule: Some(RuleEval {
+                how: "leave one trial out".into(),
+                picks: String::new(),
+                per_fold: vec![(
+                    vec!["f".into()],
+                    slipguard_core::decision::LoadRule {
+                        fraction_q15: 13_107,
+                        window: 10,
+                    },
+                )],
+                grasps: rule.clone(),
+                report: ArmedReport::of(&rule),
+                point,
+                curve: vec![point],
+            }),
+        };
+        let v = product_json(&p, None);
+        let o = v.as_object().unwrap();
+        let armed: Vec<&str> = o
+            .keys()
+            .filter_map(|k| k.strip_prefix("armed."))
+            .filter(|k| !matches!(*k, "operating_curve" | "threshold" | "raise_after"))
+            .collect();
+        assert!(armed.contains(&"detected") && armed.contains(&"false_alarm_grasp_rate_ci"));
+        for k in &armed {
+            assert!(
+                o.contains_key(&format!("baseline.load_rule.armed.{k}")),
+                "baseline.load_rule.armed.{k} missing"
+            );
+        }
+        // The rule's own figures, not the model's: lead 5 steps · 60 ms, one false-alarm grasp.
+        assert_eq!(o["armed.leads_ms"], serde_json::json!([900.0]));
+        assert_eq!(
+            o["baseline.load_rule.armed.leads_ms"],
+            serde_json::json!([300.0])
+        );
+        assert_eq!(o["baseline.load_rule.armed.false_alarm_grasps"], 1);
+        assert_eq!(o["armed.false_alarm_grasps"], 0);
+        assert_eq!(o["baseline.load_rule.folds"][0]["window_frames"], 10);
+        // The table has the rule's row under the model's.
+        let rows = armed_row(&p);
+        assert!(
+            rows.lines()
+                .nth(2)
+                .unwrap()
+                .starts_with("| load rule beside m |")
+        );
+    }
 }

@@ -9,6 +9,7 @@ mod bench_host;
 #[cfg_attr(not(feature = "train"), allow(dead_code))]
 mod check;
 mod closed_loop;
+mod compare;
 mod dataset;
 mod demo;
 mod eval;
@@ -82,6 +83,12 @@ pub enum Command {
         after_help = "Example:\n  slipguard eval models/hand-force/hand-force.safetensors runs/cv/lstm"
     )]
     Eval(eval::Args),
+    /// The hand flag against the hand-load rule over repeated cross-validation (seeds): mean and
+    /// range, and paired per grasp.
+    #[command(after_help = "Examples:
+  slipguard compare runs/s1/hf runs/s2/hf runs/s3/hf
+  slipguard compare --seeds 1,2,3 --out runs/compare -- --variant data-stft-lstm --force-diff --cv 5 --tune-decision")]
+    Compare(compare::Args),
     /// Run the shipped models through the bit-exact core on real and simulated data (README's main command).
     #[command(after_help = "Example:\n  slipguard demo --out out/demo")]
     Demo(demo::Args),
@@ -125,6 +132,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         #[cfg(feature = "train")]
         Command::Train(a) => train::run(*a),
         Command::Eval(a) => eval::run(a),
+        Command::Compare(a) => compare::run(a),
         Command::Demo(a) => demo::run(a),
         Command::BenchHost(a) => bench_host::run(a),
         #[cfg(not(feature = "train"))]
