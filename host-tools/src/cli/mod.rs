@@ -4,6 +4,7 @@
 
 mod baselines;
 mod bench_host;
+mod calibrate;
 mod check;
 mod closed_loop;
 mod dataset;
@@ -72,6 +73,11 @@ pub enum Command {
         after_help = "Example:\n  slipguard eval models/hand-force/hand-force.safetensors runs/cv/lstm"
     )]
     Eval(eval::Args),
+    /// Threshold and hysteresis from held grasps only, within a false-alarm budget.
+    #[command(
+        after_help = "Examples:\n  slipguard calibrate labelled --false-alarm-budget 0.1 --out calibration.txt\n  slipguard calibrate data/eagle-shoal --false-alarm-budget 0.1 --cv 4"
+    )]
+    Calibrate(calibrate::Args),
     /// Run the shipped models through the bit-exact core on real and simulated data (README's main command).
     #[command(after_help = "Example:\n  slipguard demo --out out/demo")]
     Demo(demo::Args),
@@ -93,6 +99,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ClosedLoop(a) => closed_loop::run(a),
         Command::Train(a) => train::run(*a),
         Command::Eval(a) => eval::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
         Command::Demo(a) => demo::run(a),
         Command::BenchHost(a) => bench_host::run(a),
     }

@@ -1,0 +1,373 @@
+//! The field loop at every profile rate and sensor (issue 25): recordings written by `simulate`
+//! at 40 Hz (hand) and 71 Hz (suction), labelled by `label`, train a model whose blob header
+//! has the recordings' rate and unit; a folder that mixes rates, options that contradict the
+//! data and unlabelled data are refused before any output; and the CLI defects of issue 27
+//! that touch these commands (each test fails without its fix).
+use std::path::{Path, PathBuf};
+use std::process::{Command as Process, Output};
+
+use slipguard_core::blob::{AlignedBlob, InputUnit};
+use slipguard_core::model::Model;
+
+fn slipguard() -> Process {
+    Process::new(env!("CARGO_BIN_EXE_slipguard"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("sg-rates-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn run_ok(p: &mut Process) -> String {
+    let out = p.output().unwrap();
+    assert!(out.status.success(), "{p:?}\n{}", text(&out));
+    text(&out)
+}
+
+/// Runs `p`, which must fail with exactly one line on stderr; returns that line.
+fn run_err(p: &mut Process) -> String {
+    let out = p.output().unwrap();
+    assert!(!out.status.success(), "{p:?} succeeded:\n{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr).trim().to_string();
+    assert_eq!(err.lines().count(), 1, "{p:?}: not one line:\n{err}");
+    err
+}
+
+/// `simulate` recordings into `dir` (suction: the 71 Hz ones; the 17.75 Hz copies go into a
+/// subfolder).
+fn simulate(dir: &Path, args: &[&str]) {
+    run_ok(
+        slipguard()
+            .arg("simulate")
+            .args(args)
+            .args(["--failure-share", "0.5", "--out"])
+            .arg(dir),
+    );
+}
+
+/// The recordings' `# outcome:` lines removed, as the monitor writes them.
+fn strip_outcomes(dir: &Path) -> Vec<(String, String)> {
+    let mut truth = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_none_or(|e| e != "csv") {
+            continue;
+        }
+        let s = std::fs::read_to_string(&p).unwrap();
+        let mut kept = String::new();
+        for l in s.lines() {
+            if let Some(o) = l.strip_prefix("# outcome: ") {
+                let id = p.file_stem().unwrap().to_string_lossy().into_owned();
+                truth.push((id, o.trim().to_string()));
+            } else if !l.starts_with("# drop_step:") && !l.starts_with("# slip_onset_step:") {
+                kept.push_str(l);
+                kept.push('\n');
+            }
+        }
+        std::fs::write(&p, kept).unwrap();
+    }
+    truth.sort();
+    truth
+}
+
+fn blob_header(p: &Path) -> (u32, InputUnit, String) {
+    let b = AlignedBlob::new(&std::fs::read(p).unwrap());
+    let m = Model::from_bytes(b.as_bytes()).unwrap();
+    let c = m.config();
+    let name = String::from_utf8_lossy(&c.name)
+        .trim_end_matches('\0')
+        .to_string();
+    (c.sample_rate_mhz, c.input_unit, name)
+}
+
+fn train_small(data: &Path, out: &Path, extra: &[&str]) -> Process {
+    let mut p = slipguard();
+    p.arg("train")
+        .arg(data)
+        .arg("--out")
+        .arg(out)
+        .args([
+            "--variant",
+            "lstm",
+            "--hidden",
+            "4",
+            "--epochs",
+            "1",
+            "--batch",
+            "64",
+        ])
+        .args(extra);
+    p
+}
+
+#[test]
+fn forty_hz_force_recordings_train_a_40_hz_blob_named_as_asked() {
+    let dir = tmp("f40");
+    let rec = dir.join("rec");
+    simulate(&rec, &["--rate", "40", "--count", "6", "--seed", "5"]);
+    let truth = strip_outcomes(&rec);
+    let lab = dir.join("labelled");
+    let t = run_ok(
+        slipguard()
+            .arg("label")
+            .arg(&rec)
+            .args(["--outcome-from-drop", "--stats", "--out"])
+            .arg(&lab),
+    );
+    // The durations in seconds at 40 Hz: 1.2 s lead = 48 steps, 0.6 s hold = 24 steps.
+    assert!(t.contains("config at 40 Hz: lead 48 steps"), "{t}");
+    assert!(t.contains("for 24 steps (0.60 s)"), "{t}");
+    // The outcome from the force agrees with the simulator's on every trial.
+    for (id, o) in &truth {
+        assert!(t.contains(&format!("{id}: outcome {o}")), "{id} {o}\n{t}");
+    }
+    let out = dir.join("model");
+    let t = run_ok(&mut train_small(&lab, &out, &["--name", "mine"]));
+    assert!(t.contains("at 40 Hz"), "{t}");
+    let (rate, unit, name) = blob_header(&out.join("mine.bin"));
+    assert_eq!(
+        (rate, unit, name.as_str()),
+        (40_000, InputUnit::MilliNewton, "mine")
+    );
+    // A model at another rate than the data is refused by eval, naming both rates.
+    let e = run_err(
+        slipguard()
+            .arg("eval")
+            .arg(out.join("mine.safetensors"))
+            .arg("--data")
+            .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/eagle-shoal"))
+            .args(["--sim-force", "0", "--sim-suction", "0"]),
+    );
+    assert!(e.contains("40 Hz") && e.contains("16.7 Hz"), "{e}");
+    // And by export: calibrating on recordings at another rate is refused; on its own it
+    // exports.
+    use slipguard_export::pipeline::{self, ExportOptions, ModelSource};
+    let opts = |data: PathBuf| ExportOptions {
+        source: ModelSource {
+            path: out.join("mine.safetensors"),
+            ..Default::default()
+        },
+        data: Some(data),
+        validation: None,
+        max_trials: None,
+        fit_norm: false,
+        cell_bits: None,
+        quiet: true,
+        no_holdout: true,
+    };
+    let e = pipeline::export(&opts(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/eagle-shoal"),
+    ))
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("16.7 Hz") && e.contains("40 Hz"), "{e}");
+    let blob = pipeline::export(&opts(lab)).unwrap().blob;
+    let m = Model::from_bytes(AlignedBlob::new(&blob).as_bytes())
+        .unwrap()
+        .config()
+        .sample_rate_mhz;
+    assert_eq!(m, 40_000);
+}
+
+#[test]
+fn suction_recordings_train_a_71_hz_counts_blob_and_their_drops_are_found() {
+    let dir = tmp("s71");
+    let sim = dir.join("sim");
+    simulate(
+        &sim,
+        &["--sensor", "suction", "--count", "4", "--seed", "2"],
+    );
+    // The 17.75 Hz copies are in their own folder, so `sim` is one rate.
+    assert!(sim.join("17.75hz").is_dir());
+    // Recorded as from the board: through the firmware (tare at grasp start) with the samples
+    // stream on, the bytes through the monitor's recorder; release at the simulated opening.
+    let rec = dir.join("rec");
+    std::fs::create_dir_all(&rec).unwrap();
+    let mut truth = Vec::new();
+    for e in std::fs::read_dir(&sim).unwrap() {
+        let f = e.unwrap().path();
+        if f.extension().is_none_or(|e| e != "csv") {
+            continue;
+        }
+        let id = f.file_stem().unwrap().to_string_lossy().into_owned();
+        let text = std::fs::read_to_string(&f).unwrap();
+        let meta = |k: &str| {
+            text.lines()
+                .find_map(|l| l.strip_prefix(&format!("# {k}: ")))
+                .unwrap()
+                .trim()
+                .to_string()
+        };
+        truth.push((id.clone(), meta("outcome")));
+        let bin = dir.join(format!("{id}.bin"));
+        run_ok(
+            slipguard()
+                .arg("replay")
+                .arg(&f)
+                .args(["--samples", "--script", "marks", "--release-at"])
+                .arg(meta("open_start"))
+                .arg("--out")
+                .arg(&bin),
+        );
+        run_ok(
+            slipguard()
+                .arg("monitor")
+                .arg("--capture")
+                .arg(&bin)
+                .arg("--record")
+                .arg(rec.join(format!("{id}.csv"))),
+        );
+    }
+    truth.sort();
+    assert!(truth.iter().any(|(_, o)| o == "failure"), "{truth:?}");
+    assert!(truth.iter().any(|(_, o)| o == "success"), "{truth:?}");
+    let lab = dir.join("labelled");
+    let t = run_ok(
+        slipguard()
+            .arg("label")
+            .arg(&rec)
+            .args(["--outcome-from-drop", "--stats", "--out"])
+            .arg(&lab),
+    );
+    assert!(t.contains("contact >= 1500 counts"), "{t}");
+    for (id, o) in &truth {
+        assert!(t.contains(&format!("{id}: outcome {o}")), "{id} {o}\n{t}");
+    }
+    let out = dir.join("model");
+    run_ok(&mut train_small(&lab, &out, &[]));
+    let (rate, unit, _) = blob_header(&out.join("lstm.bin"));
+    assert_eq!((rate, unit), (71_000, InputUnit::Counts));
+    // Suction recordings given to a force model: refused, naming both.
+    let e = run_err(&mut train_small(
+        &lab,
+        &dir.join("x"),
+        &["--sensor", "force"],
+    ));
+    assert!(
+        e.contains("--sensor force") && e.contains("suction (counts)"),
+        "{e}"
+    );
+    assert!(!dir.join("x").exists());
+}
+
+#[test]
+fn mixed_rates_contradicting_options_and_unlabelled_data_are_refused_before_output() {
+    let dir = tmp("mixed");
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    simulate(&a, &["--rate", "40", "--count", "1", "--seed", "1"]);
+    simulate(&b, &["--count", "1", "--seed", "1"]);
+    let mixed = dir.join("mixed");
+    std::fs::create_dir_all(&mixed).unwrap();
+    for (src, name) in [(&a, "a.csv"), (&b, "b.csv")] {
+        let f = std::fs::read_dir(src)
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap()
+            .path();
+        std::fs::copy(f, mixed.join(name)).unwrap();
+    }
+    for cmd in ["label", "train"] {
+        let mut p = slipguard();
+        p.arg(cmd).arg(&mixed).arg("--out").arg(dir.join("out"));
+        let e = run_err(&mut p);
+        assert!(
+            e.contains("b.csv")
+                && e.contains("16.7 Hz")
+                && e.contains("a.csv")
+                && e.contains("40 Hz"),
+            "{cmd}: {e}"
+        );
+        assert!(!dir.join("out").exists(), "{cmd} created its output");
+    }
+    // --rate-hz against the data's.
+    let e = run_err(&mut train_small(
+        &a,
+        &dir.join("out"),
+        &["--rate-hz", "16.7"],
+    ));
+    assert!(e.contains("--rate-hz 16.7") && e.contains("40 Hz"), "{e}");
+    // Unlabelled recordings: `label --out` needs --outcome-from-drop, `train` needs `label`.
+    strip_outcomes(&a);
+    let e = run_err(
+        slipguard()
+            .arg("label")
+            .arg(&a)
+            .arg("--out")
+            .arg(dir.join("out")),
+    );
+    assert!(e.contains("--outcome-from-drop"), "{e}");
+    let e = run_err(&mut train_small(&a, &dir.join("out"), &[]));
+    assert!(
+        e.contains("slipguard label") && e.contains("--outcome-from-drop"),
+        "{e}"
+    );
+    assert!(!dir.join("out").exists());
+}
+
+#[test]
+fn negative_numbers_reach_the_range_check() {
+    for (cmd, args) in [
+        ("train", &["--epochs", "-1"][..]),
+        ("train", &["--hidden", "-3"][..]),
+        ("label", &["--lead-s", "-1"][..]),
+        ("replay", &["x.csv", "--rate", "-5"][..]),
+    ] {
+        let out = slipguard()
+            .arg(cmd)
+            .args(args)
+            .args(["--out", "/nonexistent/x"])
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success());
+        assert!(!e.contains("unexpected argument"), "{cmd} {args:?}: {e}");
+        assert!(e.contains(args[args.len() - 1]), "{cmd} {args:?}: {e}");
+    }
+}
+
+#[test]
+fn label_plot_to_a_png_file_draws_that_file() {
+    let dir = tmp("plot");
+    let png = dir.join("out/label.png");
+    run_ok(
+        slipguard()
+            .arg("label")
+            .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/eagle-shoal"))
+            .args(["--trial", "Cheez_100_814_top_3", "--plot"])
+            .arg(&png),
+    );
+    assert!(png.is_file());
+    assert_eq!(&std::fs::read(&png).unwrap()[1..4], b"PNG");
+}
+
+#[test]
+fn replay_of_a_40_hz_recording_picks_the_40_hz_shipped_model() {
+    let dir = tmp("replay40");
+    simulate(&dir, &["--rate", "40", "--count", "1", "--seed", "3"]);
+    let f = std::fs::read_dir(&dir)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let t = run_ok(
+        slipguard()
+            .arg("replay")
+            .arg(&f)
+            .arg("--out")
+            .arg(dir.join("f.bin")),
+    );
+    assert!(t.contains("hand-force-40hz"), "{t}");
+}
