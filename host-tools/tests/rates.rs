@@ -371,3 +371,78 @@ fn replay_of_a_40_hz_recording_picks_the_40_hz_shipped_model() {
     );
     assert!(t.contains("hand-force-40hz"), "{t}");
 }
+
+#[test]
+fn calibrate_picks_from_held_grasps_within_the_budget_and_eval_agrees() {
+    let dir = tmp("calib");
+    // Ten eagle-shoal trials (held and dropped) in their own dataset folder.
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/eagle-shoal/trials");
+    let data = dir.join("trials");
+    std::fs::create_dir_all(&data).unwrap();
+    let mut ids: Vec<_> = std::fs::read_dir(&src)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    ids.sort();
+    for id in ids.iter().take(10) {
+        let to = data.join(id);
+        std::fs::create_dir_all(&to).unwrap();
+        for f in std::fs::read_dir(src.join(id)).unwrap() {
+            let f = f.unwrap().path();
+            std::fs::copy(&f, to.join(f.file_name().unwrap())).unwrap();
+        }
+    }
+    let pick = dir.join("pick.txt");
+    let t = run_ok(
+        slipguard()
+            .arg("calibrate")
+            .arg(&data)
+            .args(["--false-alarm-budget", "0.2", "--out"])
+            .arg(&pick),
+    );
+    let line = std::fs::read_to_string(&pick).unwrap();
+    let v: Vec<&str> = line.split_whitespace().collect();
+    assert_eq!(v[0], "threshold", "{line}");
+    let (fa, held) = t
+        .lines()
+        .find_map(|l| l.strip_prefix("pick: "))
+        .and_then(|l| l.split("(the model's): ").nth(1))
+        .and_then(|l| l.split(' ').next())
+        .and_then(|s| s.split_once('/'))
+        .map(|(a, b)| (a.parse::<usize>().unwrap(), b.parse::<usize>().unwrap()))
+        .unwrap();
+    assert!(held >= 3 && fa as f64 <= 0.2 * held as f64, "{t}");
+    // The same decision scored by `eval` (its own armed-window path) gives the same count.
+    let json = dir.join("e.json");
+    run_ok(
+        slipguard()
+            .arg("eval")
+            .arg(
+                Path::new(env!("CARGO_MANIFEST_DIR"))
+                    .join("../models/hand-force/hand-force.safetensors"),
+            )
+            .arg("--data")
+            .arg(&data)
+            .args(["--threshold", v[1], "--raise-after", v[2]])
+            .args(["--sim-force", "0", "--sim-suction", "0", "--json"])
+            .arg(&json),
+    );
+    let j = std::fs::read_to_string(&json).unwrap();
+    assert!(
+        j.contains(&format!("\"armed.false_alarm_grasps\": {fa},"))
+            || j.contains(&format!("\"armed.false_alarm_grasps\":{fa},")),
+        "{t}\n{j}"
+    );
+    // A negative budget reaches the range check.
+    let out = slipguard()
+        .arg("calibrate")
+        .arg(&data)
+        .args(["--false-alarm-budget", "-0.1"])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && e.contains("-0.1 is not in the allowed range"),
+        "{e}"
+    );
+}

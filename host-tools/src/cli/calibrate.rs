@@ -69,6 +69,17 @@ pub fn pick(
         })
 }
 
+fn pct(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{:.0} %", 100.0 * v))
+}
+
+/// A 95 % bootstrap interval in percent.
+fn ci(i: Option<slipguard_data::armed::Interval>) -> String {
+    i.map_or("[-]".into(), |i| {
+        format!("[{:.0}–{:.0} %]", 100.0 * i.lo, 100.0 * i.hi)
+    })
+}
+
 fn with(base: &HandConfig, p: &CurvePoint) -> HandConfig {
     let mut h = *base;
     h.decision.threshold_q15 = Q15::from_f64(p.threshold).header_threshold() as i16;
@@ -216,11 +227,18 @@ fn cross_validate(
     let fa = ArmedReport::of(&unseen);
     let det = ArmedReport::of(&detected);
     println!(
-        "{}-fold CV, budget {}: unseen held grasps with a false alarm {}; failures (each scored with every fold's pick) {}",
+        "{}-fold CV, budget {}: unseen held grasps with a false alarm {}/{} = {} {}; failures detected (each scored with every fold's pick) {}/{} = {} {} (≥ 300 ms ahead: {})",
         a.cv,
         a.false_alarm_budget,
-        fa.summary(),
-        det.summary()
+        fa.metrics.false_alarm_grasps,
+        fa.metrics.successes,
+        pct(fa.metrics.false_alarm_grasp_rate()),
+        ci(fa.false_alarm_grasp_rate_ci),
+        det.metrics.detected,
+        det.metrics.failures,
+        pct(det.metrics.detected_rate()),
+        ci(det.detected_rate_ci),
+        det.metrics.detected_with_lead(300.0)
     );
     Ok(())
 }
