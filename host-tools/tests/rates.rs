@@ -446,3 +446,209 @@ fn calibrate_picks_from_held_grasps_within_the_budget_and_eval_agrees() {
         "{e}"
     );
 }
+
+fn decode(bytes: &[u8]) -> Vec<slipguard_core::protocol::Frame> {
+    let mut d = slipguard_core::protocol::Deframer::new();
+    bytes
+        .iter()
+        .filter_map(|&b| d.push_decode(b))
+        .map(|r| r.unwrap())
+        .collect()
+}
+
+/// The field loop at a profile's rate on the host, through the same portable app the QEMU
+/// build runs: simulated grasps recorded from the firmware's samples stream by the monitor,
+/// labelled (outcomes from the drop), trained, exported on the recordings, uploaded into the
+/// simulated flash of a board running the shipped model for that rate, and then the flags are
+/// the new model's: equal to an app that ran it from boot and to the core stepped on the
+/// samples frames' values, and not the old model's.
+fn field_loop_at(sim_args: &[&str], profile: slipguard_app::profile::Profile, name: &str) {
+    use slipguard::replay;
+    use slipguard_app::replay::{self as fw, field_script};
+    use slipguard_app::upload::{FACTORY_SLOT, SimFlash};
+    use slipguard_core::model::ChannelState;
+    use slipguard_core::protocol::Message;
+    use slipguard_export::pipeline::{self, ExportOptions, ModelSource};
+
+    let dir = tmp(name);
+    let sim = dir.join("sim");
+    simulate(&sim, sim_args);
+    let rec = dir.join("rec");
+    std::fs::create_dir_all(&rec).unwrap();
+    for e in std::fs::read_dir(&sim).unwrap() {
+        let f = e.unwrap().path();
+        if f.extension().is_none_or(|e| e != "csv") {
+            continue;
+        }
+        let id = f.file_stem().unwrap().to_string_lossy().into_owned();
+        let text = std::fs::read_to_string(&f).unwrap();
+        let open = text
+            .lines()
+            .find_map(|l| l.strip_prefix("# open_start: "))
+            .unwrap()
+            .trim()
+            .to_string();
+        let bin = dir.join(format!("{id}.bin"));
+        run_ok(
+            slipguard()
+                .arg("replay")
+                .arg(&f)
+                .args(["--samples", "--script", "marks", "--release-at", &open])
+                .arg("--out")
+                .arg(&bin),
+        );
+        run_ok(
+            slipguard()
+                .arg("monitor")
+                .arg("--capture")
+                .arg(&bin)
+                .arg("--record")
+                .arg(rec.join(format!("{id}.csv"))),
+        );
+    }
+    let lab = dir.join("labelled");
+    run_ok(
+        slipguard()
+            .arg("label")
+            .arg(&rec)
+            .args(["--outcome-from-drop", "--out"])
+            .arg(&lab),
+    );
+    let out = dir.join("model");
+    run_ok(&mut train_small(&lab, &out, &["--name", "field"]));
+    let exported = pipeline::export(&ExportOptions {
+        source: ModelSource {
+            path: out.join("field.safetensors"),
+            ..Default::default()
+        },
+        data: Some(lab.clone()),
+        validation: None,
+        max_trials: None,
+        fit_norm: false,
+        cell_bits: None,
+        quiet: true,
+        no_holdout: true,
+    })
+    .unwrap();
+    let new = AlignedBlob::new(&exported.blob);
+    let first = std::fs::read_dir(&lab)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .min()
+        .unwrap();
+    // The sensor's signal is the simulated grasp's (absolute pressure for suction: the
+    // recording holds the firmware's tared values), the same grasp the first recording holds.
+    let trial = slipguard_data::load_path(
+        &sim.join(first.file_name().unwrap()),
+        &slipguard_data::labels::LabelConfig::default(),
+        |_, _| {},
+    )
+    .unwrap()
+    .remove(0);
+    let rate_mhz = (trial.rate_hz * 1000.0).round() as u32;
+    assert_eq!(new.parse().unwrap().config.sample_rate_mhz, rate_mhz);
+    // The board runs the shipped model for this rate and sensor.
+    let old = replay::load_blob(&replay::default_model_for(&profile, rate_mhz)).unwrap();
+    assert_eq!(
+        Model::from_bytes(old.as_bytes())
+            .unwrap()
+            .config()
+            .sample_rate_mhz,
+        rate_mhz
+    );
+    assert_ne!(new.as_bytes(), old.as_bytes());
+    let bytes = replay::trial_bytes(&trial, &profile).repeat(2);
+    let steps = 2 * trial.n_steps();
+    let fw_trial = fw::Trial::new(&bytes, profile.channels);
+    let run = |model: &AlignedBlob, second: &AlignedBlob| {
+        let mut slots = [
+            vec![u32::MAX; 128 * 1024 / 4],
+            vec![u32::MAX; 128 * 1024 / 4],
+        ];
+        for (w, b) in slots[FACTORY_SLOT as usize]
+            .iter_mut()
+            .zip(model.as_bytes().chunks_exact(4))
+        {
+            *w = u32::from_ne_bytes([b[0], b[1], b[2], b[3]]);
+        }
+        let [s0, s1] = &mut slots;
+        let mut flash = SimFlash::new(s0, s1);
+        let mut out = Vec::new();
+        let (n, reloaded) = fw::run_field(
+            profile,
+            model.as_bytes(),
+            second.as_bytes(),
+            &mut flash,
+            &fw_trial,
+            |b| out.extend_from_slice(b),
+        );
+        let frames = decode(&out);
+        assert_eq!(frames.len(), n);
+        (frames, reloaded)
+    };
+    let (field, reloaded) = run(&old, &new);
+    assert_eq!(
+        reloaded,
+        Some(field_script::commit_at(new.as_bytes().len()))
+    );
+    let p_after = |v: &[slipguard_core::protocol::Frame]| -> Vec<[u16; 16]> {
+        v.iter()
+            .filter_map(|f| match f.msg {
+                Message::Flags(x) => Some(x.p),
+                _ => None,
+            })
+            .skip(field_script::GRASP_AGAIN_AT as usize)
+            .collect()
+    };
+    assert_eq!(
+        p_after(&field).len(),
+        steps - field_script::GRASP_AGAIN_AT as usize
+    );
+    assert_eq!(p_after(&field), p_after(&run(&new, &new).0));
+    assert_ne!(p_after(&field), p_after(&run(&old, &old).0));
+    // The core stepped per channel from the grasp start on the samples frames' values.
+    let model = Model::new(new.parse().unwrap()).unwrap();
+    let contact = slipguard_core::decision::ContactConfig::of(model.config());
+    let values: Vec<_> = field
+        .iter()
+        .filter_map(|f| match f.msg {
+            Message::Samples(s) => Some(s),
+            _ => None,
+        })
+        .skip(field_script::GRASP_AGAIN_AT as usize)
+        .collect();
+    let n = profile.channels;
+    let mut states: Vec<ChannelState> = (0..n).map(|_| ChannelState::default()).collect();
+    let mut in_contact = 0;
+    for (s, p) in values.iter().zip(p_after(&field)) {
+        assert_eq!(s.fault, 0);
+        for c in 0..n {
+            let o = model.step_in_contact(&mut states[c], &contact, s.value[c]);
+            let want = o.step.map_or(slipguard_core::protocol::P_NONE, |o| {
+                o.p_unstable_q15.max(0) as u16
+            });
+            assert_eq!(want, p[c], "channel {c}");
+            in_contact += usize::from(o.step.is_some());
+        }
+    }
+    assert!(in_contact > 100, "{in_contact} channel steps in contact");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn field_loop_at_40_hz_on_the_hand_profile() {
+    field_loop_at(
+        &["--rate", "40", "--count", "4", "--seed", "7"],
+        slipguard_app::profile::Profile::HAND,
+        "loop40",
+    );
+}
+
+#[test]
+fn field_loop_on_the_suction_profile() {
+    field_loop_at(
+        &["--sensor", "suction", "--count", "3", "--seed", "2"],
+        slipguard_app::profile::Profile::SUCTION,
+        "loop71",
+    );
+}
