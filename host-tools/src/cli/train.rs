@@ -201,6 +201,10 @@ pub struct Args {
     /// covers 1.25× it, so that the blob gets a finer cell format (0 = off: the calibrated one).
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.0, value_parser = check::non_negative)]
     pub qat_cell_max: f64,
+    /// STFT window length in samples for the variants with bands, 4…48 (bins 1…10 kept; default:
+    /// the rate's set-up, `StftConfig::for_rate_mhz`, docs/model-format.md).
+    #[arg(long, allow_negative_numbers = true, value_parser = check::usize_in!(4..=48))]
+    pub stft_window: Option<usize>,
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
@@ -959,12 +963,19 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
             None => v.name().to_string(),
         };
         let blob_name = blob_name_of(&a, &name, v);
-        let config = match a.sensor {
+        let mut config = match a.sensor {
             Sensor::Force => {
                 ev::force_config(v, a.force_diff, a.hidden, &blob_name, cl_cfg.rate_mhz)
             }
             Sensor::Suction => ev::suction_config(v, a.force_diff, a.hidden, &blob_name),
         };
+        if let Some(n) = a.stft_window.filter(|_| v.uses_bands()) {
+            config.stft.window_len = n as u8;
+            config
+                .stft
+                .validate()
+                .map_err(|e| anyhow::anyhow!("--stft-window {n}: {e}"))?;
+        }
         eprintln!(
             "== {name}: {} (d(t) {}, hidden {}, {} MACs/step)",
             v.name(),
