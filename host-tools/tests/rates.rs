@@ -131,6 +131,28 @@ fn forty_hz_force_recordings_train_a_40_hz_blob_named_as_asked() {
     for (id, o) in &truth {
         assert!(t.contains(&format!("{id}: outcome {o}")), "{id} {o}\n{t}");
     }
+    // A failure whose recording shows no lasting drop gets no labels: train names it.
+    let held = truth
+        .iter()
+        .find(|(_, o)| o == "success")
+        .unwrap()
+        .0
+        .clone();
+    let odd = dir.join("odd");
+    std::fs::create_dir_all(&odd).unwrap();
+    for e in std::fs::read_dir(&lab).unwrap() {
+        let f = e.unwrap().path();
+        let mut text = std::fs::read_to_string(&f).unwrap();
+        if f.file_stem().unwrap().to_string_lossy() == held {
+            text = text.replace("# outcome: success", "# outcome: failure");
+        }
+        std::fs::write(odd.join(f.file_name().unwrap()), text).unwrap();
+    }
+    let t = run_ok(&mut train_small(&odd, &dir.join("odd-model"), &[]));
+    assert!(
+        t.contains("failure without a lasting drop") && t.contains(&held),
+        "{t}"
+    );
     let out = dir.join("model");
     let t = run_ok(&mut train_small(&lab, &out, &["--name", "mine"]));
     assert!(t.contains("at 40 Hz"), "{t}");

@@ -746,7 +746,8 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
     }
     if !unknown.is_empty() {
         eprintln!(
-            "skipped, no outcome (run `slipguard label --outcome-from-drop` on them): {}",
+            "{}: skipped, no outcome (run `slipguard label --outcome-from-drop` on them): {}",
+            path.display(),
             unknown.join(", ")
         );
     }
@@ -757,7 +758,8 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
         .collect();
     if !no_drop.is_empty() {
         eprintln!(
-            "skipped, failure without a lasting drop (no step labels; check them with `slipguard label --stats`): {}",
+            "{}: skipped, failure without a lasting drop (no step labels; check them with `slipguard label --stats`): {}",
+            path.display(),
             no_drop.join(", ")
         );
     }
