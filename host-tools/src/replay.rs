@@ -44,6 +44,37 @@ pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
     v
 }
 
+/// The shipped model for a trial's rate on a profile: the first blob (in [`default_models`]
+/// order, then every other `models/*/` folder by name) whose header has the rate `rate_mhz`
+/// and the profile's input unit, else the profile's first default model (the caller's rate
+/// check then names the mismatch).
+pub fn default_model_for(profile: &Profile, rate_mhz: u32) -> PathBuf {
+    let defaults = default_models(profile);
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
+    let mut dirs: Vec<String> = std::fs::read_dir(&root)
+        .map(|rd| {
+            rd.filter_map(|e| e.ok())
+                .filter(|e| e.path().is_dir())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    dirs.sort();
+    let fits = |p: &PathBuf| {
+        load_blob(p).ok().is_some_and(|b| {
+            Model::from_bytes(b.as_bytes()).is_ok_and(|m| {
+                m.config().sample_rate_mhz == rate_mhz && m.config().input_unit == profile.unit
+            })
+        })
+    };
+    defaults
+        .iter()
+        .cloned()
+        .chain(dirs.iter().flat_map(|d| shipped_blobs(d)))
+        .find(fits)
+        .unwrap_or_else(|| defaults[0].clone())
+}
+
 /// The blobs (`*.bin`, sorted) of `models/<dir>/` in this repository; empty if there are none.
 pub fn shipped_blobs(dir: &str) -> Vec<PathBuf> {
     let dir = repo_root().join("models").join(dir);

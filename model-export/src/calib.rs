@@ -94,16 +94,24 @@ pub fn load_data(
         warnings: Vec::new(),
     };
     let model_rate = config.sample_rate_hz();
+    // The data's rate and unit must be the model's: calibrating on other signals gives formats
+    // (and a verification) for data the model never sees.
+    let first = &trials[0];
+    let unit_ok = match config.input_unit {
+        slipguard_core::blob::InputUnit::Counts => first.unit == slipguard_data::Unit::Counts,
+        _ => first.unit == slipguard_data::Unit::MilliNewton,
+    };
+    if (first.rate_hz - model_rate).abs() > 0.01 * model_rate || !unit_ok {
+        return Err(ExportError::Data(format!(
+            "{}: recordings at {} Hz in {} ({}), the model runs at {model_rate} Hz in {}: give recordings at the model's rate and unit",
+            path.display(),
+            first.rate_hz,
+            first.unit,
+            first.id,
+            config.input_unit
+        )));
+    }
     for t in &trials {
-        if (t.rate_hz - model_rate).abs() > 0.01 * model_rate {
-            let w = format!(
-                "trial {} is sampled at {} Hz, the model at {model_rate} Hz",
-                t.id, t.rate_hz
-            );
-            if out.warnings.len() < 5 {
-                out.warnings.push(w);
-            }
-        }
         for (c, samples) in t.samples.iter().enumerate() {
             if t.contact.get(c) == Some(&true) && !samples.is_empty() {
                 out.recordings.push(ChannelSequence {

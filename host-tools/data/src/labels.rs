@@ -103,7 +103,10 @@ impl LabelConfig {
 
 /// Per-channel baseline: the median of the steps before grasp start (at least
 /// 5 of them), else of the first 10 steps; 0 for force channels whose median is
-/// below 0 or unknown.
+/// below 0 or unknown. A pressure channel (counts) recorded from the board is tared at
+/// grasp start (the suction profile's `tare`): the pre-grasp steps are absolute pressure and
+/// the grasp-start step is near 0, so its baseline is 0, the tare's zero (else a cup that
+/// lets go, back at the tare's 0, would never count as a drop).
 pub fn baselines(trial: &Trial) -> Vec<f32> {
     let n = trial.n_steps();
     let end = match trial.marks.grasp_start {
@@ -119,10 +122,22 @@ pub fn baselines(trial: &Trial) -> Vec<f32> {
             }
             let mut v: Vec<f32> = c[..end].to_vec();
             v.sort_by(f32::total_cmp);
-            v[v.len() / 2]
+            let median = v[v.len() / 2];
+            match trial.marks.grasp_start.and_then(|g| c.get(g)) {
+                Some(&at_grasp)
+                    if trial.unit == Unit::Counts && at_grasp.abs() < TARE_SHARE * median.abs() =>
+                {
+                    0.0
+                }
+                _ => median,
+            }
         })
         .collect()
 }
+
+/// A pressure channel whose grasp-start value is below this share of its pre-grasp median
+/// (in magnitude) was tared there ([`baselines`]).
+pub const TARE_SHARE: f32 = 0.1;
 
 /// Absolute deviation of every sample from its channel's baseline.
 pub fn deviations(trial: &Trial) -> Vec<Vec<f32>> {

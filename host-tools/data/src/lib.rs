@@ -24,7 +24,10 @@ use std::path::Path;
 /// Load trials from `path`: a recording file (`.csv` starting with the
 /// recording magic line), a folder of recordings, or an eagle-shoal layout
 /// (dataset root, `trials/` folder or one trial folder). Trials are annotated
-/// with `cfg`; `progress(done, total)` is called as they load.
+/// with `cfg` (its step counts are at the paper's 16.7 Hz and keep their durations at each
+/// recording's rate, [`labels::LabelConfig::scaled_to`]); `progress(done, total)` is called as
+/// they load. A folder whose recordings differ in rate, unit or sensor is refused, naming the
+/// first file that differs and both values: a data set trains one model at one rate.
 pub fn load_path(
     path: &Path,
     cfg: &labels::LabelConfig,
@@ -56,15 +59,21 @@ pub fn load_path(
                 });
             }
             let total = files.len();
-            files
-                .iter()
-                .enumerate()
-                .map(|(i, f)| {
-                    let t = recording::read_recording(f, cfg);
-                    progress(i + 1, total);
-                    t
-                })
-                .collect()
+            let mut trials: Vec<Trial> = Vec::with_capacity(total);
+            for (i, f) in files.iter().enumerate() {
+                let t = recording::read_recording(f, cfg)?;
+                if let Some(first) = trials.first()
+                    && let Some(message) = trial::same_rate_and_unit(first, &files[0], &t)
+                {
+                    return Err(DataError::Shape {
+                        path: f.clone(),
+                        message,
+                    });
+                }
+                trials.push(t);
+                progress(i + 1, total);
+            }
+            Ok(trials)
         }
         Err(e) => Err(e),
     }

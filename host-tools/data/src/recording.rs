@@ -365,7 +365,7 @@ pub fn write_recording(trial: &Trial, path: &Path) -> Result<()> {
 }
 
 /// Read a recording and annotate it (contact flags; drop step if not stated and
-/// the outcome is not success).
+/// the outcome is not success) with `cfg` scaled to the recording's rate.
 pub fn read_recording(path: &Path, cfg: &LabelConfig) -> Result<Trial> {
     // The file's size is checked before it is read into memory.
     let len = std::fs::metadata(path)
@@ -382,7 +382,9 @@ pub fn read_recording(path: &Path, cfg: &LabelConfig) -> Result<Trial> {
     }
     let text = read_text(path)?;
     let mut trial = parse_recording(&text, path)?;
-    annotate(&mut trial, cfg);
+    // `cfg` counts steps at the paper's rate: the same durations at the recording's.
+    let cfg = cfg.scaled_to(trial.rate_hz);
+    annotate(&mut trial, &cfg);
     Ok(trial)
 }
 

@@ -69,6 +69,37 @@ impl FromStr for SensorKind {
     }
 }
 
+/// Why `other` cannot join a data set that starts with `first` (read from `first_path`): a
+/// different rate (more than 0.5 % apart), unit or sensor, in one line naming both values and
+/// the fix; `None` when they match.
+pub fn same_rate_and_unit(
+    first: &Trial,
+    first_path: &std::path::Path,
+    other: &Trial,
+) -> Option<String> {
+    let what = if (other.rate_hz - first.rate_hz).abs() > 0.005 * first.rate_hz {
+        format!("{} Hz", other.rate_hz)
+    } else if other.unit != first.unit {
+        format!("unit {}", other.unit)
+    } else if other.sensor != first.sensor {
+        format!("sensor {}", other.sensor)
+    } else {
+        return None;
+    };
+    let was = if what.ends_with(" Hz") {
+        format!("{} Hz", first.rate_hz)
+    } else if other.unit != first.unit {
+        format!("unit {}", first.unit)
+    } else {
+        format!("sensor {}", first.sensor)
+    };
+    Some(format!(
+        "{what}, but {} is {was}: one data set is one rate and one sensor (a model runs at \
+         one), so put the recordings of each in their own folder",
+        first_path.display()
+    ))
+}
+
 /// Outcome of the grasp.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Outcome {

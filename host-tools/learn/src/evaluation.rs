@@ -129,7 +129,7 @@ fn base_config(
         input_offset: offset,
         input_full_scale: full_scale,
         stft: if variant.uses_bands() {
-            StftConfig::PAPER
+            StftConfig::for_rate_mhz(rate_mhz)
         } else {
             StftConfig::NONE
         },

@@ -12,7 +12,7 @@ use slipguard_data::labels::LabelConfig;
 use slipguard_learn::product;
 
 use super::eval::{self, Group};
-use super::train::load_real_trials;
+use super::load_real_trials;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -328,8 +328,64 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     } else {
         load_real_trials(a.data.as_deref())?.1
     };
-    let force_rule = force_onset_rule();
-    let real = real_sequences(&real_trials);
+    // The recordings' rate and unit (one per data set, the loader checks) decide which models
+    // they evaluate; a model at another rate or unit is refused for a --data folder.
+    let data_key = real_trials.first().map(|t| {
+        let unit = match t.unit {
+            slipguard_data::Unit::Counts => InputUnit::Counts,
+            _ => InputUnit::MilliNewton,
+        };
+        ((t.rate_hz * 1000.0).round() as u32, unit)
+    });
+    let fits_data = |g: &Group| {
+        data_key.is_some_and(|(r, u)| {
+            g.members
+                .iter()
+                .all(|(c, _)| c.model.config.sample_rate_mhz == r && c.model.config.input_unit == u)
+        })
+    };
+    if let (Some(d), Some((r, u))) = (&a.data, data_key)
+        && let Some(g) = groups.iter().find(|g| !fits_data(g))
+    {
+        let c = &g.members[0].0.model.config;
+        anyhow::bail!(
+            "{}: a {} Hz model in {}, but {} holds {} Hz recordings in {u}: evaluate it on recordings at its rate and unit",
+            g.name,
+            c.sample_rate_mhz as f64 / 1000.0,
+            c.input_unit,
+            d.display(),
+            r as f64 / 1000.0
+        );
+    }
+    let data_rate_mhz = data_key.map_or(PAPER_RATE_MHZ, |k| k.0);
+    // The paper's metrics on the sequences the firmware's model state sees: from each
+    // channel's contact onset (the data's sensor and rate).
+    let force_rule = OnsetRule::of(&slipguard_learn::evaluation::force_config(
+        slipguard_core::blob::Variant::Force,
+        false,
+        1,
+        "",
+        PAPER_RATE_MHZ,
+    ));
+    let data_rule = match data_key {
+        Some((_, InputUnit::Counts)) => {
+            OnsetRule::of(&slipguard_learn::evaluation::suction_config(
+                slipguard_core::blob::Variant::Force,
+                false,
+                1,
+                "",
+            ))
+        }
+        _ => OnsetRule::of(&slipguard_learn::evaluation::force_config(
+            slipguard_core::blob::Variant::Force,
+            false,
+            1,
+            "",
+            data_rate_mhz,
+        )),
+    };
+    let data_label = LabelConfig::default().scaled_to(data_rate_mhz as f32 / 1000.0);
+    let real = product::cut_to_contact(sequences_of(&real_trials, &data_label), &data_rule);
     let needs = |u: InputUnit| {
         groups.iter().any(|g| {
             g.members
@@ -375,30 +431,30 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let mut products: Vec<Product> = Vec::new();
     for g in &groups {
         let unit = g.members[0].0.model.config.input_unit;
+        if !real.is_empty() && fits_data(g) {
+            let cv = g.members.iter().all(|(c, _)| heldout(c).is_some());
+            let name = if cv { "real held-out" } else { "real (all)" };
+            let calib = |ck: &Checkpoint| -> Vec<Vec<f32>> {
+                let h = heldout(ck).unwrap_or_default();
+                real.iter()
+                    .filter(|s| !h.contains(&s.cs.trial_id))
+                    .take(64)
+                    .map(|s| s.cs.samples.clone())
+                    .collect()
+            };
+            rows.extend(eval_group(
+                g,
+                name,
+                &real,
+                |ck, s| heldout(ck).is_none_or(|h| h.contains(&s.cs.trial_id)),
+                calib,
+                plots,
+                &kinds,
+            )?);
+            notes.extend(heldout_lines(g));
+            products.push(product_eval(g, &scored_trials, &real, &calib, cv)?);
+        }
         if unit == InputUnit::MilliNewton {
-            if !real.is_empty() {
-                let cv = g.members.iter().all(|(c, _)| heldout(c).is_some());
-                let name = if cv { "real held-out" } else { "real (all)" };
-                let calib = |ck: &Checkpoint| -> Vec<Vec<f32>> {
-                    let h = heldout(ck).unwrap_or_default();
-                    real.iter()
-                        .filter(|s| !h.contains(&s.cs.trial_id))
-                        .take(64)
-                        .map(|s| s.cs.samples.clone())
-                        .collect()
-                };
-                rows.extend(eval_group(
-                    g,
-                    name,
-                    &real,
-                    |ck, s| heldout(ck).is_none_or(|h| h.contains(&s.cs.trial_id)),
-                    calib,
-                    plots,
-                    &kinds,
-                )?);
-                notes.extend(heldout_lines(g));
-                products.push(product_eval(g, &scored_trials, &real, &calib, cv)?);
-            }
             if !sim_f.is_empty() {
                 // CV groups: fold 0 stands for the recipe on simulated data.
                 let g0 = Group {
@@ -700,7 +756,8 @@ fn product_eval(
     calib: &impl Fn(&Checkpoint) -> Vec<Vec<f32>>,
     cv: bool,
 ) -> anyhow::Result<Product> {
-    let cfg = LabelConfig::default();
+    // The paper's label durations at the recordings' rate.
+    let cfg = LabelConfig::default().scaled_to(trials.first().map_or(PAPER_RATE_HZ, |t| t.rate_hz));
     let mut hand: Vec<ArmedGrasp> = Vec::new();
     let mut channel: Vec<ArmedGrasp> = Vec::new();
     let mut curve_runs: Vec<(product::WindowedRun, slipguard_core::decision::HandConfig)> =

@@ -18,7 +18,8 @@ pub struct Args {
     /// Print per-trial drop steps and the label balance.
     #[arg(long)]
     pub stats: bool,
-    /// Draw a PNG per trial (or per --trial) into this folder.
+    /// Draw a PNG per trial (or per --trial) into this folder; a path ending in `.png` is the
+    /// one file for the one selected trial.
     #[arg(long)]
     pub plot: Option<PathBuf>,
     /// Only these trial ids (repeatable) for --plot and --out.
@@ -27,21 +28,25 @@ pub struct Args {
     /// Write labelled trials as slipguard recordings into this folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Steps before the drop from which steps are unstable.
-    #[arg(long, default_value_t = 20, value_parser = super::check::usize_in!(0..=100_000))]
-    pub lead: usize,
-    /// Sequence length from grasp start.
-    #[arg(long, default_value_t = 160, value_parser = super::check::usize_in!(1..=1_000_000))]
-    pub seq_len: usize,
+    /// Seconds before the drop from which steps are unstable (paper: 1.2 s = 20 steps at
+    /// 16.7 Hz; the same duration at every rate).
+    #[arg(long, default_value_t = 1.2, allow_negative_numbers = true, value_parser = seconds_in(0.0, 600.0))]
+    pub lead_s: f32,
+    /// Sequence length from grasp start, seconds (paper: 160 steps at 16.7 Hz).
+    #[arg(long, default_value_t = 9.58, allow_negative_numbers = true, value_parser = seconds_in(0.1, 3600.0))]
+    pub seq_s: f32,
     /// Drop when the contact sum is below this fraction of its lift-window peak...
-    #[arg(long, default_value_t = 0.05, value_parser = super::check::open_unit_f32)]
+    #[arg(long, default_value_t = 0.05, allow_negative_numbers = true, value_parser = super::check::open_unit_f32)]
     pub drop_fraction: f32,
-    /// ... for this many steps.
-    #[arg(long, default_value_t = 10, value_parser = super::check::usize_in!(1..=100_000))]
-    pub drop_hold: usize,
-    /// Contact threshold (mN above baseline) for force channels.
-    #[arg(long, default_value_t = 500.0, value_parser = super::check::positive_f32)]
+    /// ... for this many seconds (paper set-up: 0.6 s = 10 steps at 16.7 Hz).
+    #[arg(long, default_value_t = 0.6, allow_negative_numbers = true, value_parser = seconds_in(0.01, 600.0))]
+    pub drop_hold_s: f32,
+    /// Contact threshold for force channels, mN above the pre-grasp baseline.
+    #[arg(long, default_value_t = 500.0, allow_negative_numbers = true, value_parser = super::check::positive_f32)]
     pub contact_mn: f32,
+    /// Contact threshold for pressure channels (suction), 1/16 ADC counts from the baseline.
+    #[arg(long, default_value_t = 1500.0, allow_negative_numbers = true, value_parser = super::check::positive_f32)]
+    pub contact_counts: f32,
     /// Trials of unknown outcome (the monitor's recordings): failure if the force shows a
     /// lasting drop after the lift, else success (printed per trial; check it against what you
     /// saw, and fix a wrong one with `# outcome:` in the recording).
@@ -49,31 +54,90 @@ pub struct Args {
     pub outcome_from_drop: bool,
 }
 
+/// clap parser: a duration in seconds within `lo..=hi`.
+fn seconds_in(lo: f32, hi: f32) -> impl Fn(&str) -> Result<f32, String> + Clone {
+    move |s: &str| match s.trim().parse::<f32>() {
+        Ok(v) if v.is_finite() && (lo..=hi).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not a duration in {lo}..={hi} s")),
+    }
+}
+
+/// Steps at the paper's rate (what [`LabelConfig`] counts in) for `seconds`.
+fn paper_steps(seconds: f32) -> usize {
+    ((seconds * slipguard_core::sample::PAPER_RATE_HZ).round() as usize).max(1)
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let cfg = LabelConfig {
-        unstable_lead_steps: a.lead,
-        sequence_len: a.seq_len,
+    // LabelConfig counts steps at the paper's 16.7 Hz; the loader and `scaled_to` keep these
+    // durations at each recording's rate.
+    let paper = LabelConfig {
+        unstable_lead_steps: if a.lead_s == 0.0 {
+            0
+        } else {
+            paper_steps(a.lead_s)
+        },
+        sequence_len: paper_steps(a.seq_s),
         drop_fraction: a.drop_fraction,
-        drop_hold_steps: a.drop_hold,
+        drop_hold_steps: paper_steps(a.drop_hold_s),
         contact_threshold_mn: a.contact_mn,
+        contact_threshold_counts: a.contact_counts,
         ..LabelConfig::default()
     };
-    cfg.check().map_err(anyhow::Error::msg)?;
+    paper.check().map_err(anyhow::Error::msg)?;
+    // Outputs checked before any work.
+    let single_png = a
+        .plot
+        .as_ref()
+        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")));
+    if let Some(p) = single_png {
+        anyhow::ensure!(
+            a.trials.len() == 1,
+            "--plot {}: one PNG file draws one trial: add --trial ID (or give a folder for one PNG per trial)",
+            p.display()
+        );
+    }
     let path = a.path.clone().unwrap_or_else(eagle::default_data_dir);
     let pb = bar(0, "loading");
-    let trials = load_path(&path, &cfg, |i, n| {
+    let trials = load_path(&path, &paper, |i, n| {
         pb.set_length(n as u64);
         pb.set_position(i as u64);
     })
     .with_context(|| format!("loading {}", path.display()))?;
     pb.finish_and_clear();
+    let rate_hz = trials.first().map_or(
+        slipguard_core::sample::PAPER_RATE_HZ,
+        |t: &slipguard_data::Trial| t.rate_hz,
+    );
+    let unit = trials
+        .first()
+        .map_or(slipguard_data::Unit::MilliNewton, |t| t.unit.clone());
+    let cfg = paper.scaled_to(rate_hz);
+    let unknown: Vec<&str> = trials
+        .iter()
+        .filter(|t| t.outcome == Outcome::Unknown)
+        .map(|t| t.id.as_str())
+        .collect();
+    if a.out.is_some() && !a.outcome_from_drop && !unknown.is_empty() {
+        anyhow::bail!(
+            "{} of {} recordings have no outcome ({}{}), so they would get no labels: add \
+             --outcome-from-drop (or put `# outcome: success|failure` into each recording)",
+            unknown.len(),
+            trials.len(),
+            unknown[..unknown.len().min(3)].join(", "),
+            if unknown.len() > 3 { ", ..." } else { "" }
+        );
+    }
     let mut trials = trials;
     if a.outcome_from_drop {
         for t in trials.iter_mut().filter(|t| t.outcome == Outcome::Unknown) {
-            // `load_path` annotated the trial: the drop step is set when the force drops.
+            // `load_path` annotated the trial: the drop step is set when the signal drops.
             t.outcome = match t.drop_step {
                 Some(d) => {
-                    println!("{}: outcome failure (lasting drop from step {d})", t.id);
+                    println!(
+                        "{}: outcome failure (lasting drop from step {d}, {:.2} s)",
+                        t.id,
+                        d as f32 / t.rate_hz
+                    );
                     Outcome::Failure
                 }
                 None => {
@@ -145,16 +209,36 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             100.0 * s.channel_stable_share()
         );
         println!(
-            "config: lead {} steps, sequence {} steps, drop < {} x lift peak for {} steps, contact >= {} mN for {} steps",
+            "config at {rate_hz} Hz: lead {} steps ({:.2} s), sequence {} steps ({:.2} s), drop < {} x lift peak for {} steps ({:.2} s), contact >= {} {unit} for {} steps",
             cfg.unstable_lead_steps,
+            cfg.unstable_lead_steps as f32 / rate_hz,
             cfg.sequence_len,
+            cfg.sequence_len as f32 / rate_hz,
             cfg.drop_fraction,
             cfg.drop_hold_steps,
-            cfg.contact_threshold_mn,
+            cfg.drop_hold_steps as f32 / rate_hz,
+            cfg.contact_threshold(&unit),
             cfg.contact_min_run
         );
     }
-    if let Some(dir) = &a.plot {
+    if let Some(file) = single_png {
+        let (t, l) = trials
+            .iter()
+            .zip(&labels)
+            .find(|(t, _)| selected(&t.id))
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--trial {}: no such trial in {}",
+                    a.trials[0],
+                    path.display()
+                )
+            })?;
+        if let Some(dir) = file.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        plot::plot_trial(t, Some(l), file)?;
+        println!("wrote {}", file.display());
+    } else if let Some(dir) = &a.plot {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let pairs: Vec<_> = trials
             .iter()

@@ -5,6 +5,7 @@
 #[cfg(feature = "train")]
 mod baselines;
 mod bench_host;
+mod calibrate;
 // The blob and range checks; some serve only `train`.
 #[cfg_attr(not(feature = "train"), allow(dead_code))]
 mod check;
@@ -89,6 +90,11 @@ pub enum Command {
   slipguard compare runs/s1/hf runs/s2/hf runs/s3/hf
   slipguard compare --seeds 1,2,3 --out runs/compare -- --variant data-stft-lstm --force-diff --cv 5 --tune-decision")]
     Compare(compare::Args),
+    /// Threshold and hysteresis from held grasps only, within a false-alarm budget.
+    #[command(
+        after_help = "Examples:\n  slipguard calibrate labelled --false-alarm-budget 0.1 --out calibration.txt\n  slipguard calibrate data/eagle-shoal --false-alarm-budget 0.1 --cv 4"
+    )]
+    Calibrate(calibrate::Args),
     /// Run the shipped models through the bit-exact core on real and simulated data (README's main command).
     #[command(after_help = "Example:\n  slipguard demo --out out/demo")]
     Demo(demo::Args),
@@ -133,6 +139,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => train::run(*a),
         Command::Eval(a) => eval::run(a),
         Command::Compare(a) => compare::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
         Command::Demo(a) => demo::run(a),
         Command::BenchHost(a) => bench_host::run(a),
         #[cfg(not(feature = "train"))]

@@ -46,28 +46,29 @@ pub struct Args {
     /// A folder of recordings (or the eagle-shoal root) replays each trial: `--out` and `--png`
     /// are then folders (`<id>.bin`, `<id>.png`).
     pub trial: PathBuf,
-    /// Model blob (default: models/hand-force/*.bin or models/suction/*.bin, first in name
-    /// order, else the golden untrained blob).
+    /// Model blob (default: the shipped model for the trial's rate and sensor, e.g.
+    /// models/hand-force/*.bin at 16.7 Hz, models/hand-force-40hz/*.bin at 40 Hz,
+    /// models/suction/*.bin; else the golden untrained blob).
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Sensor profile.
     #[arg(long, value_enum, default_value_t = ProfileArg::Auto)]
     pub profile: ProfileArg,
     /// Rate of a plain tactile.csv, Hz (> 0).
-    #[arg(long, default_value_t = PAPER_RATE_HZ, value_parser = check::positive_f32)]
+    #[arg(long, default_value_t = PAPER_RATE_HZ, allow_negative_numbers = true, value_parser = check::positive_f32)]
     pub rate: f32,
     /// Commands sent to the firmware during the replay.
     #[arg(long, value_enum, default_value_t = Script::None)]
     pub script: Script,
     /// With `--script marks`: grasp start before this frame.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub grasp_at: Option<u32>,
     /// With `--script marks`: release before this frame.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub release_at: Option<u32>,
     /// With `--script marks`: lift before this frame (default with --samples: the trial's lift
     /// mark).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub lift_at: Option<u32>,
     /// Send stream mode flags+samples before the first frame (and info), so the frames carry
     /// the samples stream a `slipguard monitor --capture F --record R` records.
@@ -83,13 +84,13 @@ pub struct Args {
     #[arg(long)]
     pub port: Option<String>,
     /// Baud rate of `--port`.
-    #[arg(long, default_value_t = 921_600, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = 921_600, allow_negative_numbers = true, value_parser = clap::value_parser!(u32).range(1..))]
     pub baud: u32,
     /// A Fig. 8-style plot (PNG).
     #[arg(long)]
     pub png: Option<PathBuf>,
     /// Plot one channel's prediction instead of "any channel".
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub plot_channel: Option<usize>,
     /// Allow a model whose rate differs from the trial's.
     #[arg(long)]
@@ -280,10 +281,9 @@ fn run_one(
         ProfileArg::Hand => Profile::HAND,
         ProfileArg::Suction => Profile::SUCTION,
     };
-    let model = a
-        .model
-        .clone()
-        .unwrap_or_else(|| replay::default_models(&profile).remove(0));
+    let model = a.model.clone().unwrap_or_else(|| {
+        replay::default_model_for(&profile, (trial.rate_hz * 1000.0).round() as u32)
+    });
     if let Some(c) = a.plot_channel
         && c >= profile.channels
     {

@@ -173,10 +173,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     if let Some(dir) = &a.out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        // One folder is one data set at one rate (`label` and `train` refuse a mix): recordings
+        // at another rate than the first (suction's 17.75 Hz copies) go into a subfolder.
+        let main_rate = trials.first().map_or(0.0, |t| t.rate_hz);
         for t in &trials {
-            recording::write_recording(t, &dir.join(format!("{}.csv", t.id)))?;
+            let d = if t.rate_hz == main_rate {
+                dir.clone()
+            } else {
+                dir.join(format!("{}hz", t.rate_hz))
+            };
+            std::fs::create_dir_all(&d).with_context(|| format!("creating {}", d.display()))?;
+            recording::write_recording(t, &d.join(format!("{}.csv", t.id)))?;
         }
-        println!("wrote {} recordings to {}", trials.len(), dir.display());
+        println!(
+            "wrote {} recordings to {} ({} Hz; other rates in subfolders)",
+            trials.len(),
+            dir.display(),
+            main_rate
+        );
     }
     if let Some(dir) = &a.plot {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;

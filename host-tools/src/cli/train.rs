@@ -8,7 +8,7 @@ use slipguard::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequ
 use slipguard_core::blob::Variant;
 use slipguard_core::decision::{ContactConfig, DecisionConfig, Q15};
 use slipguard_core::float::FloatModel;
-use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
+use slipguard_core::sample::PAPER_RATE_HZ;
 use slipguard_data::Trial;
 use slipguard_data::labels::{ChannelSequence, LabelConfig};
 use slipguard_learn::checkpoint::{self, Checkpoint};
@@ -24,23 +24,30 @@ use slipguard_learn::train::{EpochLog, Progress, TrainConfig, init_model, split_
 use super::progress::bar;
 use super::{check, load_real_trials};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Sensor {
-    /// Fingertip force, 16.7 Hz, real eagle-shoal trials (+ simulated force).
+    /// Fingertip force (mN), 16.7 or 40 Hz: recordings or the real eagle-shoal trials
+    /// (+ simulated force).
+    #[default]
     Force,
-    /// Suction-cup pressure, 71 Hz, simulated only (the paper's Table V set-up).
+    /// Suction-cup pressure (1/16 ADC counts), 71 Hz: recordings (+ simulated suction).
     Suction,
 }
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Real data (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
+    /// Labelled recordings or real data (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal);
+    /// their rate and unit decide the model's (one rate and one unit per folder).
     pub path: Option<PathBuf>,
     /// Output folder (checkpoints, blobs, logs).
     #[arg(long)]
     pub out: PathBuf,
-    /// Sensor: force (real and simulated trials) or suction (simulated).
-    #[arg(long, value_enum, default_value_t = Sensor::Force)]
+    /// Sensor: force or suction (default: the data's unit, mN = force, counts = suction; a value
+    /// that differs from the data's is refused).
+    #[arg(long = "sensor", value_enum)]
+    pub sensor_arg: Option<Sensor>,
+    /// The sensor trained for (--sensor, else the data's).
+    #[arg(skip)]
     pub sensor: Sensor,
     /// Variants, comma separated: lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm, or all.
     #[arg(long, default_value = "all")]
@@ -49,77 +56,81 @@ pub struct Args {
     #[arg(long)]
     pub force_diff: bool,
     /// LSTM hidden size (each LSTM of the dual variant), 1…128 (the firmware's bound).
-    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u16).range(1..=slipguard_core::MAX_HIDDEN as i64))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 128, value_parser = clap::value_parser!(u16).range(1..=slipguard_core::MAX_HIDDEN as i64))]
     pub hidden: u16,
     /// Learning rate (Adam), > 0.
-    #[arg(long, default_value_t = 6e-4, value_parser = check::positive)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 6e-4, value_parser = check::positive)]
     pub lr: f64,
     /// Training epochs (≥ 1; 0 with --init: no float training, e.g. QAT alone).
-    #[arg(long, default_value_t = 60, value_parser = check::usize_in!(0..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 60, value_parser = check::usize_in!(0..))]
     pub epochs: usize,
     /// Start the (fine-)tuning from this checkpoint's weights and normalisation instead of a
     /// fresh or pre-trained model (pre-training is skipped).
     #[arg(long)]
     pub init: Option<PathBuf>,
     /// Early stopping: epochs without a better validation loss.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 10, value_parser = check::usize_in!(0..))]
     pub patience: usize,
     /// Sequences per batch (≥ 1).
-    #[arg(long, default_value_t = 32, value_parser = check::usize_in!(1..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 32, value_parser = check::usize_in!(1..))]
     pub batch: usize,
     /// Seed of the weight initialisation and the batch order.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub seed: u64,
     /// Loss weights of the stable and unstable class, e.g. 1,2.
     #[arg(long, default_value = "1,1")]
     pub class_weights: String,
     /// Training labels are unstable from this many steps before the drop (evaluation keeps 20).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 20)]
     pub label_lead: usize,
     /// Loss weight of the first --start-steps steps of every sequence (against start-up alarms).
-    #[arg(long, default_value_t = 1.0, value_parser = check::non_negative_f32)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0, value_parser = check::non_negative_f32)]
     pub start_weight: f32,
     /// Steps at the start of every sequence that get --start-weight (0 = none).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub start_steps: usize,
     /// Simulated trials for pre-training (0 = none); the model is then fine-tuned on real data.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub sim_pretrain: usize,
     /// Epochs of the pre-training (≥ 1).
-    #[arg(long, default_value_t = 15, value_parser = check::usize_in!(1..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 15, value_parser = check::usize_in!(1..))]
     pub pretrain_epochs: usize,
     /// Simulated trials mixed into the (fine-)tuning set (suction: the whole training set).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub sim_mix: usize,
     /// Share of simulated trials drawn as drops (0…1).
-    #[arg(long, default_value_t = 0.3, value_parser = check::unit)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.3, value_parser = check::unit)]
     pub sim_failure_share: f64,
     /// Seed of the simulated training trials (pre-training uses it, mixing it + 1).
-    #[arg(long, default_value_t = 11)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 11)]
     pub sim_seed: u64,
     /// Simulated closed-loop trials (the four DoraHand situations, labelled with the true slip
     /// state, `slipguard::closed_loop::training_sequences`) added to the pre-training.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub closed_loop_pretrain: usize,
     /// Simulated closed-loop trials mixed into the (fine-)tuning set (split by trial for early
     /// stopping like the real trials; the decision is still tuned on real trials only).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub closed_loop_mix: usize,
     /// Seed of the closed-loop training trials (pre-training uses it, mixing it + 1); keep it
     /// apart from the seeds `slipguard closed-loop` reports on.
-    #[arg(long, default_value_t = 101)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 101)]
     pub closed_loop_seed: u64,
-    /// Model frame rate (Hz) of the force sensor: 16.7 (the paper's, real trials) or 40 (the
-    /// hand profile's fast rate, for closed-loop use; simulated trials only).
-    #[arg(long, default_value_t = PAPER_RATE_HZ, value_parser = check::positive_f32)]
+    /// Model frame rate, Hz: the data's (a value that differs from it is refused); without a
+    /// data folder, force 16.7 (the real trials) or 40 (the hand profile's fast rate: simulated
+    /// trials only), suction 71.
+    #[arg(long = "rate-hz", allow_negative_numbers = true, value_parser = check::positive_f32)]
+    pub rate_arg: Option<f32>,
+    /// The rate trained at (--rate-hz, else the data's).
+    #[arg(skip = PAPER_RATE_HZ)]
     pub rate_hz: f32,
     /// Closed-loop training labels: unstable when the object slips within this many seconds.
-    #[arg(long, default_value_t = 0.3, value_parser = check::non_negative)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.3, value_parser = check::non_negative)]
     pub closed_loop_lead: f64,
     /// Closed-loop training trials: the teacher also raises the grip on false alarms, at a rate
     /// drawn per trial from 0 to this (per s), so the model learns that the pad force rising
     /// under its controller's raises is not slip (0 = none).
-    #[arg(long, default_value_t = 0.0, value_parser = check::non_negative)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0, value_parser = check::non_negative)]
     pub closed_loop_false_alarms: f64,
     /// Closed-loop training trials: put this trained model blob in the loop instead of the
     /// teacher for --closed-loop-policy-share of the trials, so the data holds the states its
@@ -127,41 +138,41 @@ pub struct Args {
     #[arg(long)]
     pub closed_loop_policy: Option<PathBuf>,
     /// Share of the closed-loop training trials run with --closed-loop-policy (0…1).
-    #[arg(long, default_value_t = 0.5, value_parser = check::unit)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.5, value_parser = check::unit)]
     pub closed_loop_policy_share: f64,
     /// Cross-validation by trial with this many folds (0 = train one model on every trial;
     /// else 2 to the number of real trials).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub cv: usize,
     /// Share of the training trials held out (by trial) for early stopping (0 ≤ x < 1).
-    #[arg(long, default_value_t = 0.2, value_parser = check::share_below_one)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.2, value_parser = check::share_below_one)]
     pub val_share: f64,
     /// Decision threshold on p(unstable), 0 < threshold < 1.
-    #[arg(long, default_value_t = 0.5, value_parser = check::open_unit)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.5, value_parser = check::open_unit)]
     pub threshold: f64,
     /// Steps at or above the threshold before the flag rises (1…255).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub raise_after: u8,
     /// Steps below the threshold before the flag clears (1…255).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub clear_after: u8,
     /// Pick threshold and hysteresis on the validation trials (overrides the three above).
     #[arg(long)]
     pub tune_decision: bool,
     /// With --tune-decision: smallest raise_after the sweep may pick (suppresses start-up blips).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
     pub min_raise: u8,
     /// With --tune-decision on real trials: the decision maximises (validation failures detected
     /// ≥ 300 ms ahead) − (validation successes with a hand flag in their armed window), shares,
     /// with a further penalty on a false-alarm share over this bound.
-    #[arg(long, default_value_t = 0.125, value_parser = check::unit)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.125, value_parser = check::unit)]
     pub max_false_alarm_rate: f64,
     /// With --tune-decision on real trials: pick the decision on the held-out trials of an inner
     /// cross-validation over the training trials with this many folds (each inner fold trains its
     /// own model with the same recipe) instead of on the few validation trials (0 = off, else
     /// 2…20). With --cv the inner folds run inside each outer fold's training trials, so the
     /// outer held-out trials stay unseen; without it this is the pooled CV over all real trials.
-    #[arg(long, default_value_t = 0, requires = "tune_decision", value_parser = check::usize_in!(0..=20))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0, requires = "tune_decision", value_parser = check::usize_in!(0..=20))]
     pub tune_decision_cv: usize,
     /// Train on sequences from the grasp start instead of from each channel's contact onset
     /// (the firmware's model state starts at the onset; this is for comparison only).
@@ -171,15 +182,15 @@ pub struct Args {
     /// blob's arithmetic in the forward pass (int8 weights by the quantizer's row rule, σ/tanh
     /// tables, Q3.12/Q0.15 rounding, the calibrated cell format), straight-through gradients,
     /// early stopping on the same validation set (0 = off).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub qat_epochs: usize,
     /// Learning rate (Adam) of the quantization-aware fine-tuning, > 0.
-    #[arg(long, default_value_t = 1e-4, value_parser = check::positive)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1e-4, value_parser = check::positive)]
     pub qat_lr: f64,
     /// QAT keeps the epoch with the lowest validation loss among those whose blob stays within
     /// this max |Δp| of its float checkpoint over every step of the whole agreement recordings
     /// (what `slipguard-export verify` measures; else the epoch closest to it), 0…1.
-    #[arg(long, default_value_t = 0.025, value_parser = check::unit)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.025, value_parser = check::unit)]
     pub qat_max_dp: f64,
     /// Recordings (unlabelled use: whole contact channels) for the QAT agreement check (default:
     /// the real force trials, without the held-out ones in cross-validation; `none` = by
@@ -188,8 +199,12 @@ pub struct Args {
     pub qat_agreement_data: Option<PathBuf>,
     /// QAT: penalise |c| beyond this bound in the loss and fine-tune in the cell format that
     /// covers 1.25× it, so that the blob gets a finer cell format (0 = off: the calibrated one).
-    #[arg(long, default_value_t = 0.0, value_parser = check::non_negative)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0, value_parser = check::non_negative)]
     pub qat_cell_max: f64,
+    /// STFT window length in samples for the variants with bands, 4…48 (bins 1…10 kept; default:
+    /// the rate's set-up, `StftConfig::for_rate_mhz`, docs/model-format.md).
+    #[arg(long, allow_negative_numbers = true, value_parser = check::usize_in!(4..=48))]
+    pub stft_window: Option<usize>,
     /// Name prefix of the models (default: the variant's name).
     #[arg(long)]
     pub name: Option<String>,
@@ -419,7 +434,7 @@ impl Run<'_> {
         let mut timing = Vec::new();
         let tr_refs: Vec<&ChannelSequence> = train_real.iter().map(|s| &s.cs).collect();
         let (mut tr, val) = split_by_trial(&tr_refs, a.val_share, split_seed);
-        let (mut tr_mix, val_mix) = if a.sensor == Sensor::Suction || d.real.is_empty() {
+        let (mut tr_mix, val_mix) = if d.real.is_empty() {
             split_by_trial(&refs(d.sim_mix), a.val_share, a.seed)
         } else {
             (refs(d.sim_mix), Vec::new())
@@ -514,7 +529,11 @@ impl Run<'_> {
                 .filter(|t| held.contains(&t.id))
                 .collect();
             runs.extend(with_quantized_model(&f.model, &calib, |m| {
-                product::windowed_runs(m, &trials, &LabelConfig::default())
+                product::windowed_runs(
+                    m,
+                    &trials,
+                    &LabelConfig::default().scaled_to(self.a.rate_hz),
+                )
             })??);
         }
         Ok(runs)
@@ -535,7 +554,11 @@ impl Run<'_> {
             let (runs, base) = with_quantized_model(model, calib, |m| {
                 let runs = match inner {
                     Some(r) => r.to_vec(),
-                    None => product::windowed_runs(m, val_trials, &LabelConfig::default())?,
+                    None => product::windowed_runs(
+                        m,
+                        val_trials,
+                        &LabelConfig::default().scaled_to(self.a.rate_hz),
+                    )?,
                 };
                 anyhow::Ok((runs, slipguard_core::decision::HandConfig::of(m.config())))
             })??;
@@ -629,15 +652,142 @@ fn write_train_log(
     Ok(())
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
-    let variants = parse_variants(&a.variant)?;
-    let profile = match a.sensor {
+/// The data's sensor, rate and trials, or `None` for simulated trials only (no folder given and
+/// a rate or sensor the shipped real trials are not at). Everything a data set can get wrong
+/// (rate or unit against the options and the profiles, no labels) is refused here, before any
+/// output is written.
+fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
+    let not_paper = a
+        .rate_arg
+        .is_some_and(|r| (r - PAPER_RATE_HZ).abs() > 0.005 * PAPER_RATE_HZ);
+    if a.path.is_none() && (not_paper || a.sensor_arg == Some(Sensor::Suction)) {
+        a.sensor = a.sensor_arg.unwrap_or_default();
+        let profile = profile_of(a.sensor);
+        a.rate_hz = match (a.rate_arg, a.sensor) {
+            (Some(r), _) => r,
+            (None, Sensor::Suction) => profile.default_rate_mhz() as f32 / 1000.0,
+            (None, Sensor::Force) => PAPER_RATE_HZ,
+        };
+        check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
+        return Ok(None);
+    }
+    let (path, trials) = load_real_trials(a.path.as_deref())?;
+    let Some(first) = trials.first() else {
+        anyhow::bail!("{}: no recordings", path.display());
+    };
+    let (rate, unit) = (first.rate_hz, first.unit.clone());
+    let sensor = match unit {
+        slipguard_data::Unit::MilliNewton => Sensor::Force,
+        slipguard_data::Unit::Counts => Sensor::Suction,
+        ref u => anyhow::bail!(
+            "{}: recordings in {u}: train takes force in mN or suction pressure in counts",
+            path.display()
+        ),
+    };
+    let name = |s: Sensor| match s {
+        Sensor::Force => "force (mN)",
+        Sensor::Suction => "suction (counts)",
+    };
+    if let Some(s) = a.sensor_arg.filter(|&s| s != sensor) {
+        anyhow::bail!(
+            "--sensor {}: {} holds {} recordings ({}): drop --sensor, or give {} recordings",
+            name(s),
+            path.display(),
+            name(sensor),
+            first.id,
+            name(s)
+        );
+    }
+    if let Some(r) = a.rate_arg.filter(|r| (r - rate).abs() > 0.005 * rate) {
+        anyhow::bail!(
+            "--rate-hz {r}: {} is recorded at {rate} Hz ({}): drop --rate-hz (the data's rate \
+             decides the model's), or record at {r} Hz",
+            path.display(),
+            first.id
+        );
+    }
+    a.sensor = sensor;
+    a.rate_hz = rate;
+    check::profile_rate(
+        &format!("{}: recorded at", path.display()),
+        rate as f64,
+        &[profile_of(sensor)],
+    )
+    .map_err(|e| anyhow::anyhow!("{e}: record at a rate the board runs"))?;
+    let unknown: Vec<&str> = trials
+        .iter()
+        .filter(|t| t.outcome == slipguard_data::Outcome::Unknown)
+        .map(|t| t.id.as_str())
+        .collect();
+    if unknown.len() == trials.len() {
+        anyhow::bail!(
+            "{}: none of the {} recordings has an outcome, so there is nothing to train on: \
+             label them first (slipguard label {} --outcome-from-drop --out LABELLED) and train on LABELLED",
+            path.display(),
+            trials.len(),
+            path.display()
+        );
+    }
+    if !unknown.is_empty() {
+        eprintln!(
+            "{}: skipped, no outcome (run `slipguard label --outcome-from-drop` on them): {}",
+            path.display(),
+            unknown.join(", ")
+        );
+    }
+    let no_drop: Vec<&str> = trials
+        .iter()
+        .filter(|t| t.outcome == slipguard_data::Outcome::Failure && t.drop_step.is_none())
+        .map(|t| t.id.as_str())
+        .collect();
+    if !no_drop.is_empty() {
+        eprintln!(
+            "{}: skipped, failure without a lasting drop (no step labels; check them with `slipguard label --stats`): {}",
+            path.display(),
+            no_drop.join(", ")
+        );
+    }
+    Ok(Some((path, trials)))
+}
+
+fn profile_of(sensor: Sensor) -> slipguard_app::profile::Profile {
+    match sensor {
         Sensor::Force => slipguard_app::profile::Profile::HAND,
         Sensor::Suction => slipguard_app::profile::Profile::SUCTION,
-    };
-    if a.sensor == Sensor::Force {
-        check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
     }
+}
+
+/// The blob header's name: --blob-name, else --name when it fits the field, else the variant's
+/// short name.
+fn blob_name_of(a: &Args, name: &str, v: Variant) -> String {
+    if let Some(b) = &a.blob_name {
+        return b.clone();
+    }
+    if a.name.is_some() {
+        if let Ok(n) = check::blob_name(name) {
+            return n;
+        }
+        let short: String = name
+            .chars()
+            .filter(|c| c.is_ascii_graphic() || *c == ' ')
+            .take(12)
+            .collect();
+        if !short.is_empty() {
+            return short;
+        }
+    }
+    match v {
+        Variant::Force => "lstm",
+        Variant::Stft => "stft",
+        Variant::ForceStft => "data+stft",
+        Variant::DualLstm => "dual",
+    }
+    .to_string()
+}
+
+pub fn run(mut a: Args) -> anyhow::Result<()> {
+    let variants = parse_variants(&a.variant)?;
+    let data = resolve_data(&mut a)?;
     anyhow::ensure!(
         a.epochs > 0 || a.init.is_some(),
         "--epochs 0 trains nothing: give --init CKPT (e.g. for QAT alone) or at least 1 epoch"
@@ -678,31 +828,46 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         ..Default::default()
     };
     let mut real_trials: Vec<Trial> = Vec::new();
+    let real = match data {
+        Some((path, trials)) => {
+            // The paper's label durations at the data's rate.
+            let real = sequences_of(&trials, &LabelConfig::default().scaled_to(a.rate_hz));
+            real_trials = trials;
+            eprintln!(
+                "recorded: {} sequences from {} at {} Hz ({} failure sequences)",
+                real.len(),
+                path.display(),
+                a.rate_hz,
+                real.iter().filter(|s| s.failure()).count()
+            );
+            anyhow::ensure!(
+                !real.is_empty() || a.sim_mix + a.closed_loop_mix > 0,
+                "{}: no training sequences (no labelled channel in contact): check the recordings \
+                 with `slipguard label {} --stats`",
+                path.display(),
+                path.display()
+            );
+            real
+        }
+        None => {
+            anyhow::ensure!(
+                a.cv == 0,
+                "--cv needs recorded trials: give a folder of labelled recordings at {} Hz",
+                a.rate_hz
+            );
+            eprintln!(
+                "{} Hz {}: simulated trials only (give a folder of labelled recordings to train on them)",
+                a.rate_hz,
+                match a.sensor {
+                    Sensor::Force => "force",
+                    Sensor::Suction => "suction",
+                }
+            );
+            Vec::new()
+        }
+    };
     let (real, sim_pre, sim_mix) = match a.sensor {
         Sensor::Force => {
-            let real = if cl_cfg.rate_mhz == PAPER_RATE_MHZ {
-                let (path, trials) = load_real_trials(a.path.as_deref())?;
-                let real = sequences_of(&trials, &LabelConfig::default());
-                real_trials = trials;
-                eprintln!(
-                    "real: {} sequences from {} ({} failure sequences)",
-                    real.len(),
-                    path.display(),
-                    real.iter().filter(|s| s.failure()).count()
-                );
-                real
-            } else {
-                anyhow::ensure!(
-                    cl_cfg.rate_mhz == 40_000,
-                    "--rate-hz: the hand profile runs {PAPER_RATE_HZ} or 40 Hz"
-                );
-                anyhow::ensure!(
-                    a.cv == 0,
-                    "--cv needs real trials, which are {PAPER_RATE_HZ} Hz only"
-                );
-                eprintln!("40 Hz: simulated trials only (the real trials are {PAPER_RATE_HZ} Hz)");
-                Vec::new()
-            };
             let mut pre =
                 sim_force_sequences(a.sim_seed, a.sim_pretrain, a.sim_failure_share, a.rate_hz);
             pre.extend(training_sequences(
@@ -715,12 +880,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             (real, pre, mix)
         }
         Sensor::Suction => {
-            anyhow::ensure!(
-                a.cv == 0,
-                "--cv needs real trials; suction is simulated only"
-            );
             let mix = sim_suction_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share);
-            (Vec::new(), Vec::new(), mix)
+            (real, Vec::new(), mix)
         }
     };
     anyhow::ensure!(
@@ -769,7 +930,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         _ if a.qat_epochs == 0 => Vec::new(),
         (Some(p), _) if p.as_os_str() == "none" => Vec::new(),
         (Some(p), _) => load_real_trials(Some(p))?.1,
-        (None, Sensor::Force) if !real_trials.is_empty() => real_trials.clone(),
+        (None, _) if !real_trials.is_empty() => real_trials.clone(),
         (None, Sensor::Force) => load_real_trials(a.path.as_deref())?.1,
         (None, Sensor::Suction) => Vec::new(),
     };
@@ -787,21 +948,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             Some(n) => n.clone(),
             None => v.name().to_string(),
         };
-        let blob_name = a.blob_name.clone().unwrap_or_else(|| {
-            let short = match v {
-                Variant::Force => "lstm",
-                Variant::Stft => "stft",
-                Variant::ForceStft => "data+stft",
-                Variant::DualLstm => "dual",
-            };
-            short.to_string()
-        });
-        let config = match a.sensor {
+        let blob_name = blob_name_of(&a, &name, v);
+        let mut config = match a.sensor {
             Sensor::Force => {
                 ev::force_config(v, a.force_diff, a.hidden, &blob_name, cl_cfg.rate_mhz)
             }
             Sensor::Suction => ev::suction_config(v, a.force_diff, a.hidden, &blob_name),
         };
+        if let Some(n) = a.stft_window.filter(|_| v.uses_bands()) {
+            config.stft.window_len = n as u8;
+            config
+                .stft
+                .validate()
+                .map_err(|e| anyhow::anyhow!("--stft-window {n}: {e}"))?;
+        }
         eprintln!(
             "== {name}: {} (d(t) {}, hidden {}, {} MACs/step)",
             v.name(),
@@ -815,13 +975,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             let ck = checkpoint::read(p).with_context(|| format!("--init {}", p.display()))?;
             anyhow::ensure!(
                 ck.model.config.variant == v
-                    && ck.model.config.sample_rate_mhz == config.sample_rate_mhz,
-                "--init {}: a {} model at {} Hz, not the {} at {} Hz being trained",
+                    && ck.model.config.sample_rate_mhz == config.sample_rate_mhz
+                    && ck.model.config.input_unit == config.input_unit,
+                "--init {}: a {} model at {} Hz in {}, not the {} at {} Hz in {} being trained",
                 p.display(),
                 ck.model.config.variant.name(),
                 ck.model.config.sample_rate_mhz as f64 / 1000.0,
+                ck.model.config.input_unit,
                 v.name(),
-                config.sample_rate_mhz as f64 / 1000.0
+                config.sample_rate_mhz as f64 / 1000.0,
+                config.input_unit
             );
             let mut m = ck.model;
             m.config.name = config.name;
@@ -953,8 +1116,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     .collect();
                 let grasps = with_quantized_model(&ck.model, &calib, |qm| {
                     let hand = slipguard_core::decision::HandConfig::of(qm.config());
-                    product::windowed_runs(qm, &held_trials, &LabelConfig::default())
-                        .map(|runs| runs.iter().map(|w| w.grasp_with(&hand)).collect::<Vec<_>>())
+                    product::windowed_runs(
+                        qm,
+                        &held_trials,
+                        &LabelConfig::default().scaled_to(a.rate_hz),
+                    )
+                    .map(|runs| runs.iter().map(|w| w.grasp_with(&hand)).collect::<Vec<_>>())
                 })??;
                 armed_hand.extend(grasps);
                 pooled.0.extend(test);

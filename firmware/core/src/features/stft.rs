@@ -192,6 +192,17 @@ impl StftConfig {
         shape: WindowShape::Rectangular,
     };
 
+    /// The STFT set-up of a model at `rate_mhz`, the one definition the trainer writes into
+    /// the blob header (which the firmware then runs): the paper's 20 samples and bins 1..=10 at
+    /// every profile rate (16.7 Hz: 1.2 s, 0.835–8.35 Hz; 40 Hz: 0.5 s, 2–20 Hz; 71 Hz: 0.28 s,
+    /// 3.55–35.5 Hz). Same samples rather than same seconds: measured at 40 and 71 Hz, the
+    /// 1.2 s (48-sample at 40 Hz) window did not detect better across seeds and costs 2.4× the
+    /// DFT work per step, and 1.2 s at 71 Hz (85 samples) is over [`MAX_WINDOW`]
+    /// (docs/model-format.md, "STFT per rate").
+    pub const fn for_rate_mhz(_rate_mhz: u32) -> StftConfig {
+        Self::PAPER
+    }
+
     /// No STFT: the setting of a variant without bands (validation does not apply).
     pub const NONE: StftConfig = StftConfig {
         window_len: 0,
@@ -561,6 +572,20 @@ mod tests {
 
     /// The documented per-window bound max(0.5 + τ + 0.001, 1) (+0.001 for the f64 reference), τ
     /// recomputed here from libm: the largest error of the Q1.15-rounded e^{j2π(m + 1/8)/N}.
+    #[test]
+    fn the_set_up_per_rate_is_valid_and_its_bands_are_below_nyquist() {
+        // The profiles' rates (hand 16.7 and 40 Hz, suction 71 Hz).
+        for rate_mhz in [16_700u32, 40_000, 71_000] {
+            let c = StftConfig::for_rate_mhz(rate_mhz);
+            assert_eq!(c.validate(), Ok(()), "{rate_mhz}");
+            // Bin k is centred on k·f_s/N: the last band stays at or below f_s/2.
+            let last = (c.first_bin + c.n_bins - 1) as f64 * rate_mhz as f64 / c.window_len as f64;
+            assert!(last <= rate_mhz as f64 / 2.0, "{rate_mhz}");
+        }
+        // At the paper's rate it is the paper's set-up: 20 samples = 1.2 s, bins 1..=10.
+        assert_eq!(StftConfig::for_rate_mhz(16_700), StftConfig::PAPER);
+    }
+
     fn bound_lsb(n: usize) -> f64 {
         let tau = (0..n)
             .map(|m| {
