@@ -369,9 +369,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     );
     println!("{}", super::eval::ARMED_HEADER);
     println!("{armed}");
-    // BASELINE ROW: the load-threshold rule's armed rows (helper `loadrule`'s baseline detector
-    // in slipguard-learn's evaluation) go here, on the same trials, one line per level, so that
-    // the model is always read beside the rule. The coordinator wires it.
+    // `armed` already holds the hand-load rule's rows beside the model's (the baseline every
+    // learned flag is read against, `eval::armed_rows_for_blob`), on the same trials.
     println!("{}", super::eval::ARMED_NOTE);
     println!(
         "\n   Reading it: good is every failure detected ({f}/{f} at hand level) with a long lead \
