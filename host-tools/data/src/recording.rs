@@ -39,12 +39,14 @@ pub const MIN_RATE_HZ: f32 = 0.001;
 pub const MAX_STEPS: usize = 1 << 20;
 
 /// The values a sensor of `unit` can physically report (reader and writer refuse others):
-/// force within ±1 000 000 mN (1 kN, far beyond any fingertip or gripper), counts of a converter
-/// of at most 16 bits (0 to 65 535). `None` (any finite value) for other units.
+/// force within ±1 000 000 mN (1 kN, far beyond any fingertip or gripper); counts within
+/// ±65 535: a converter of at most 16 bits, and the suction profile records pressure relative to
+/// its tare at grasp start (the samples stream's value), so a value may fall below the zero.
+/// `None` (any finite value) for other units.
 pub fn physical_range(unit: &Unit) -> Option<(f32, f32)> {
     match unit {
         Unit::MilliNewton => Some((-1.0e6, 1.0e6)),
-        Unit::Counts => Some((0.0, 65_535.0)),
+        Unit::Counts => Some((-65_535.0, 65_535.0)),
         Unit::Other(_) => None,
     }
 }
