@@ -69,6 +69,20 @@ pub fn non_negative_f32(s: &str) -> Result<f32, String> {
     non_negative(s).map(|v| v as f32)
 }
 
+/// clap parser: a duration in seconds within `lo..=hi` (durations are seconds at every rate;
+/// the command converts them to steps at the data's rate).
+pub fn seconds_in(lo: f32, hi: f32) -> impl Fn(&str) -> Result<f32, String> + Clone {
+    move |s: &str| match s.trim().parse::<f32>() {
+        Ok(v) if v.is_finite() && (lo..=hi).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not a duration in {lo}..={hi} s")),
+    }
+}
+
+/// Steps of `seconds` at `rate_hz`, rounded to the nearest step (0 s → 0 steps).
+pub fn steps_at(seconds: f32, rate_hz: f32) -> usize {
+    (seconds * rate_hz).round() as usize
+}
+
 /// clap parser: a model name that fits the blob's name field (printable ASCII, 1 to 12 bytes).
 pub fn blob_name(s: &str) -> Result<String, String> {
     // The size of `ModelConfig::name`.
@@ -125,5 +139,26 @@ pub fn load_model(
              --allow-bad-model to run it anyway)",
             path.display()
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The paper's 1.2 s label lead is its 20 steps at 16.7 Hz, and the same duration at the
+    /// other profiles' rates (48 steps at 40 Hz, 85 at 71 Hz); 0 s stays 0 steps.
+    #[test]
+    fn durations_become_steps_at_the_data_rate() {
+        assert_eq!(steps_at(1.2, slipguard_core::sample::PAPER_RATE_HZ), 20);
+        assert_eq!(steps_at(1.2, 40.0), 48);
+        assert_eq!(steps_at(1.2, 71.0), 85);
+        assert_eq!(steps_at(0.6, 40.0), 24);
+        assert_eq!(steps_at(0.0, 40.0), 0);
+        let p = seconds_in(0.0, 60.0);
+        assert_eq!(p("0.5"), Ok(0.5));
+        assert!(p("-1").unwrap_err().contains("0..=60 s"));
+        assert!(p("61").is_err());
+        assert!(p("NaN").is_err());
     }
 }

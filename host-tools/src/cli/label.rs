@@ -30,16 +30,16 @@ pub struct Args {
     pub out: Option<PathBuf>,
     /// Seconds before the drop from which steps are unstable (paper: 1.2 s = 20 steps at
     /// 16.7 Hz; the same duration at every rate).
-    #[arg(long, default_value_t = 1.2, allow_negative_numbers = true, value_parser = seconds_in(0.0, 600.0))]
+    #[arg(long, default_value_t = 1.2, allow_negative_numbers = true, value_parser = super::check::seconds_in(0.0, 600.0))]
     pub lead_s: f32,
     /// Sequence length from grasp start, seconds (paper: 160 steps at 16.7 Hz).
-    #[arg(long, default_value_t = 9.58, allow_negative_numbers = true, value_parser = seconds_in(0.1, 3600.0))]
+    #[arg(long, default_value_t = 9.58, allow_negative_numbers = true, value_parser = super::check::seconds_in(0.1, 3600.0))]
     pub seq_s: f32,
     /// Drop when the contact sum is below this fraction of its lift-window peak...
     #[arg(long, default_value_t = 0.05, allow_negative_numbers = true, value_parser = super::check::open_unit_f32)]
     pub drop_fraction: f32,
     /// ... for this many seconds (paper set-up: 0.6 s = 10 steps at 16.7 Hz).
-    #[arg(long, default_value_t = 0.6, allow_negative_numbers = true, value_parser = seconds_in(0.01, 600.0))]
+    #[arg(long, default_value_t = 0.6, allow_negative_numbers = true, value_parser = super::check::seconds_in(0.01, 600.0))]
     pub drop_hold_s: f32,
     /// Contact threshold for force channels, mN above the pre-grasp baseline.
     #[arg(long, default_value_t = 500.0, allow_negative_numbers = true, value_parser = super::check::positive_f32)]
@@ -54,17 +54,9 @@ pub struct Args {
     pub outcome_from_drop: bool,
 }
 
-/// clap parser: a duration in seconds within `lo..=hi`.
-fn seconds_in(lo: f32, hi: f32) -> impl Fn(&str) -> Result<f32, String> + Clone {
-    move |s: &str| match s.trim().parse::<f32>() {
-        Ok(v) if v.is_finite() && (lo..=hi).contains(&v) => Ok(v),
-        _ => Err(format!("`{s}` is not a duration in {lo}..={hi} s")),
-    }
-}
-
 /// Steps at the paper's rate (what [`LabelConfig`] counts in) for `seconds`.
 fn paper_steps(seconds: f32) -> usize {
-    ((seconds * slipguard_core::sample::PAPER_RATE_HZ).round() as usize).max(1)
+    super::check::steps_at(seconds, slipguard_core::sample::PAPER_RATE_HZ).max(1)
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {

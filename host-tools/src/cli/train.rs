@@ -80,15 +80,16 @@ pub struct Args {
     /// Loss weights of the stable and unstable class, e.g. 1,2.
     #[arg(long, default_value = "1,1")]
     pub class_weights: String,
-    /// Training labels are unstable from this many steps before the drop (evaluation keeps 20).
-    #[arg(long, allow_negative_numbers = true, default_value_t = 20)]
-    pub label_lead: usize,
-    /// Loss weight of the first --start-steps steps of every sequence (against start-up alarms).
+    /// Training labels are unstable from this many seconds before the drop, at every rate
+    /// (paper: 1.2 s = 20 steps at 16.7 Hz; evaluation keeps the paper's 1.2 s).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.2, value_parser = check::seconds_in(0.0, 60.0))]
+    pub label_lead_s: f32,
+    /// Loss weight of the first --start-s seconds of every sequence (against start-up alarms).
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0, value_parser = check::non_negative_f32)]
     pub start_weight: f32,
-    /// Steps at the start of every sequence that get --start-weight (0 = none).
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
-    pub start_steps: usize,
+    /// Seconds at the start of every sequence that get --start-weight (0 = none).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0, value_parser = check::seconds_in(0.0, 60.0))]
+    pub start_s: f32,
     /// Simulated trials for pre-training (0 = none); the model is then fine-tuned on real data.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub sim_pretrain: usize,
@@ -807,9 +808,10 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         patience: a.patience,
         seed: a.seed,
         class_weights: class_weights(&a.class_weights)?,
-        label_lead: a.label_lead,
+        // Durations in seconds become steps at the training rate (the data's, or --rate-hz).
+        label_lead: check::steps_at(a.label_lead_s, a.rate_hz),
         start_weight: a.start_weight,
-        start_steps: a.start_steps,
+        start_steps: check::steps_at(a.start_s, a.rate_hz),
     };
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let run = Run { a: &a, tc, command };
