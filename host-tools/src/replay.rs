@@ -18,30 +18,22 @@ use slipguard_data::error::{DataError, Result};
 use slipguard_data::labels::{LabelConfig, label_annotated};
 use slipguard_data::trial::{Trial, Unit};
 
-/// The golden variant (c) blob (random PyTorch-init weights) shipped with the core's tests.
+/// The golden variant (c) blob (random PyTorch-init weights) of the core's tests, in the source
+/// tree: for tests and scripts only (no run-time default uses it).
 pub fn golden_model_path() -> PathBuf {
-    repo_root().join("firmware/core/tests/fixtures/bench/model.bin")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/core/tests/fixtures/bench/model.bin")
 }
 
-/// The repository root (this crate's parent folder), without `..` in the path.
-fn repo_root() -> PathBuf {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    manifest.parent().unwrap_or(manifest).to_path_buf()
-}
-
-/// The default model blobs for a profile: every `models/<dir>/*.bin` of the repository
-/// (`hand-force` for the hand, `suction` for suction), sorted, else the golden blob.
+/// The default model blobs for a profile: every `<models>/<dir>/*.bin` of the shipped models
+/// ([`slipguard_data::shipped::models_dir`]; `hand-force` for the hand, `suction` for suction),
+/// sorted.
 pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
     let dir = if profile.channels == Profile::SUCTION.channels && profile.tare {
         "suction"
     } else {
         "hand-force"
     };
-    let mut v = shipped_blobs(dir);
-    if v.is_empty() {
-        v.push(golden_model_path());
-    }
-    v
+    shipped_blobs(dir)
 }
 
 /// The shipped model for a trial's rate on a profile: the first blob (in [`default_models`]
@@ -50,7 +42,7 @@ pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
 /// check then names the mismatch).
 pub fn default_model_for(profile: &Profile, rate_mhz: u32) -> PathBuf {
     let defaults = default_models(profile);
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
+    let root = slipguard_data::shipped::models_dir();
     let mut dirs: Vec<String> = std::fs::read_dir(&root)
         .map(|rd| {
             rd.filter_map(|e| e.ok())
@@ -72,12 +64,15 @@ pub fn default_model_for(profile: &Profile, rate_mhz: u32) -> PathBuf {
         .cloned()
         .chain(dirs.iter().flat_map(|d| shipped_blobs(d)))
         .find(fits)
-        .unwrap_or_else(|| defaults[0].clone())
+        .or_else(|| defaults.first().cloned())
+        // No blob at all (an empty $SLIPGUARD_MODELS): the folder, which the caller's load names.
+        .unwrap_or(root)
 }
 
-/// The blobs (`*.bin`, sorted) of `models/<dir>/` in this repository; empty if there are none.
+/// The blobs (`*.bin`, sorted) of `<models>/<dir>/` ([`slipguard_data::shipped::models_dir`]);
+/// empty if there are none.
 pub fn shipped_blobs(dir: &str) -> Vec<PathBuf> {
-    let dir = repo_root().join("models").join(dir);
+    let dir = slipguard_data::shipped::models_dir().join(dir);
     let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
         .map(|rd| {
             rd.filter_map(|e| e.ok().map(|e| e.path()))

@@ -63,6 +63,54 @@ fn demo_draws_its_plots_without_any_system_font() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// An installed binary (`cargo install --path host-tools` copies it elsewhere) run outside the
+/// repository, with neither `$SLIPGUARD_DATA` nor `$SLIPGUARD_MODELS` set: the demo finds the real
+/// trials and the three shipped models in the copies built into the binary, not in the source
+/// tree.
+#[test]
+fn an_installed_binary_finds_its_models_and_data_outside_the_repository() {
+    let dir = tmp("installed");
+    let bin = dir.join("bin/slipguard");
+    std::fs::create_dir_all(bin.parent().unwrap()).unwrap();
+    std::fs::copy(env!("CARGO_BIN_EXE_slipguard"), &bin).unwrap();
+    let work = dir.join("work");
+    std::fs::create_dir_all(&work).unwrap();
+    let out = Command::new(&bin)
+        .args([
+            "demo",
+            "--sim-count",
+            "6",
+            "--plot-count",
+            "0",
+            "--out",
+            "plots",
+        ])
+        .current_dir(&work)
+        .env_remove("SLIPGUARD_DATA")
+        .env_remove("SLIPGUARD_MODELS")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .canonicalize()
+        .unwrap();
+    assert!(
+        !text.contains(&*repo.to_string_lossy()),
+        "a path into the source tree: {text}"
+    );
+    for model in ["hand-force", "hand-force-40hz", "suction"] {
+        assert!(
+            text.contains(&format!("models/{model}/{model}.bin")),
+            "{text}"
+        );
+    }
+    assert!(text.contains("eagle-shoal"), "{text}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `--record` into a folder that does not exist is refused before the stream is read (it used
 /// to record the whole grasp and lose it at the end).
 #[test]

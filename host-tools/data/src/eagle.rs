@@ -204,16 +204,8 @@ pub fn load_eagle_dataset(
     Ok(out)
 }
 
-/// Where the real trials live: `$SLIPGUARD_DATA` if set, else the copy in the repository,
-/// `<repo>/data/eagle-shoal` (found from this crate's manifest dir).
+/// Where the real trials live: [`crate::shipped::data_dir`] (`$SLIPGUARD_DATA`, the checkout's
+/// `data/eagle-shoal`, or the copy embedded in the binary).
 pub fn default_data_dir() -> PathBuf {
-    match std::env::var_os("SLIPGUARD_DATA") {
-        Some(p) if !p.is_empty() => PathBuf::from(p),
-        // <repo>/host-tools/data → <repo>/data/eagle-shoal, without `..` in the path.
-        _ => Path::new(env!("CARGO_MANIFEST_DIR"))
-            .ancestors()
-            .nth(2)
-            .unwrap_or(Path::new("."))
-            .join("data/eagle-shoal"),
-    }
+    crate::shipped::data_dir()
 }

@@ -322,16 +322,15 @@ fn read_torch(p: &Path) -> anyhow::Result<TorchFile> {
         .with_context(|| format!("{}: not a bench_torch_lstm.py result", p.display()))
 }
 
-/// Runs scripts/bench_torch_lstm.py (from the current folder or the repository) with the
-/// same batches, threads and duration, for the model's input and hidden sizes.
+/// scripts/bench_torch_lstm.py, built into the binary (an installed one has no source tree).
+const TORCH_SCRIPT: &str = include_str!("../../../scripts/bench_torch_lstm.py");
+
+/// Runs scripts/bench_torch_lstm.py (written to a temporary file) with the same batches,
+/// threads and duration, for the model's input and hidden sizes.
 fn run_torch_script(a: &Args, inputs: usize, hidden: usize) -> anyhow::Result<TorchFile> {
-    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let script = ["scripts/bench_torch_lstm.py"]
-        .iter()
-        .map(PathBuf::from)
-        .chain([repo.join("scripts/bench_torch_lstm.py")])
-        .find(|p| p.is_file())
-        .context("scripts/bench_torch_lstm.py not found: run from the repository")?;
+    let script = std::env::temp_dir().join(format!("slipguard-torch-{}.py", std::process::id()));
+    std::fs::write(&script, TORCH_SCRIPT)
+        .with_context(|| format!("writing {}", script.display()))?;
     let out = std::env::temp_dir().join(format!("slipguard-torch-{}.json", std::process::id()));
     let join = |v: &[usize]| {
         v.iter()
@@ -353,11 +352,12 @@ fn run_torch_script(a: &Args, inputs: usize, hidden: usize) -> anyhow::Result<To
         .arg("--out")
         .arg(&out)
         .status()
-        .context("running python3 (needed for --run-torch)")?;
+        .context("running python3 (needed for --run-torch)");
+    let _ = std::fs::remove_file(&script);
+    let status = status?;
     if !status.success() {
         bail!(
-            "{} failed ({status}): is torch installed (pip install torch)?",
-            script.display()
+            "scripts/bench_torch_lstm.py failed ({status}): is torch installed (pip install torch)?"
         );
     }
     let r = read_torch(&out);

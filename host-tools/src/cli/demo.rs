@@ -21,10 +21,12 @@ use slipguard_learn::product::{OnsetRule, armed_window, cut_to_contact};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Real data folder (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
+    /// Real data folder (default: $SLIPGUARD_DATA, else ./data/eagle-shoal in a checkout, else
+    /// the copy built into the binary).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Folder with `hand-force/`, `hand-force-40hz/` and `suction/` (default: <repo>/models).
+    /// Folder with `hand-force/`, `hand-force-40hz/` and `suction/` (default: $SLIPGUARD_MODELS,
+    /// else ./models in a checkout, else the copies built into the binary).
     #[arg(long)]
     pub models: Option<PathBuf>,
     /// Folder for the plots (PNG files; created if missing).
@@ -41,10 +43,9 @@ pub struct Args {
     pub plot_count: u32,
 }
 
-/// Default models folder: `<repo>/models`.
+/// Default models folder: [`slipguard_data::shipped::models_dir`].
 pub fn default_models_dir() -> PathBuf {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    manifest.parent().unwrap_or(manifest).join("models")
+    slipguard_data::shipped::models_dir()
 }
 
 /// `path` as a reader would type it: relative to the working directory when inside it, without
@@ -73,7 +74,7 @@ impl Shipped {
         let path = dir.join(name).join(format!("{name}.bin"));
         let bytes = std::fs::read(&path).with_context(|| {
             format!(
-                "reading the shipped model {} (run from the repository, or pass --models)",
+                "reading the shipped model {} (pass --models or set $SLIPGUARD_MODELS)",
                 path.display()
             )
         })?;

@@ -1,7 +1,7 @@
 //! `slipguard simulate`: generate force or suction trials, or `--validate`
 //! the force simulator against the real trials and write the report.
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use clap::ValueEnum;
@@ -56,7 +56,8 @@ pub struct Args {
     /// Real data for --validate (default: $SLIPGUARD_DATA or <repo>/data/eagle-shoal).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Folder for the report (`simulator-validation.md`) and its `img/` (default: <repo>/docs).
+    /// Folder for the report (`simulator-validation.md`) and its `img/` (default: `docs` in the
+    /// current folder, the repository's when run from its root).
     #[arg(long)]
     pub report_dir: Option<PathBuf>,
 }
@@ -207,7 +208,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 }
 
 fn repo_docs() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs")
+    PathBuf::from("docs")
 }
 
 /// Real trials shown side by side with simulated ones.
