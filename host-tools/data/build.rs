@@ -1,4 +1,4 @@
-//! Embeds the shipped real trials (`data/eagle-shoal/`) and model blobs (`models/*/*.bin`) in
+//! Embeds the shipped real trials (`data/eagle-shoal/`) and models (`models/`: blobs, checkpoints, cards) in
 //! the crate, so that an installed binary (`cargo install --path host-tools`) finds them without
 //! the source tree: `shipped.rs` unpacks them at run time. Cargo re-runs this script when a
 //! file in either folder changes.
@@ -36,11 +36,7 @@ fn main() {
     let mut data_files = Vec::new();
     walk(&data, &|_| true, &mut data_files);
     let mut model_files = Vec::new();
-    walk(
-        &models,
-        &|p| p.extension().is_some_and(|e| e == "bin"),
-        &mut model_files,
-    );
+    walk(&models, &|_| true, &mut model_files);
     data_files.sort();
     model_files.sort();
 
