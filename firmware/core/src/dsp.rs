@@ -76,8 +76,7 @@ pub struct LstmRowParams {
 /// σ's interval table ([`interval_table`]). On the bare-metal target it is placed in
 /// `.data`, copied to SRAM by the runtime at boot: the gate pass reads it 384 times per channel
 /// step (rows i, f, o), and from flash nearly every read would miss the ART accelerator's 8
-/// data lines (5 wait states). 4 KiB of RAM; tanh's table (256 reads per step: rows g and the
-/// cell update) stays in flash, within the static RAM budget (`scripts/budgets.sh`).
+/// data lines (5 wait states). 2 KiB of RAM.
 #[cfg_attr(
     all(target_arch = "arm", target_os = "none"),
     unsafe(link_section = ".data.slipguard_sigmoid")
@@ -85,7 +84,14 @@ pub struct LstmRowParams {
 // SAFETY: a plain read-only static in an ordinary data section (the runtime initialises .data
 // before main); nothing else is placed there.
 static SIGMOID_TABLE: IntervalTable = crate::activation::SIGMOID_INTERVALS;
-/// tanh's interval table (flash on the target, see [`SIGMOID_TABLE`]).
+/// tanh's interval table, in SRAM on the target as [`SIGMOID_TABLE`] (256 reads per channel
+/// step: rows g and the cell update). 2 KiB; both tables together take the 4 KiB that σ's
+/// alone took in the earlier two-word format.
+#[cfg_attr(
+    all(target_arch = "arm", target_os = "none"),
+    unsafe(link_section = ".data.slipguard_tanh")
+)]
+// SAFETY: as SIGMOID_TABLE.
 static TANH_TABLE: IntervalTable = crate::activation::TANH_INTERVALS;
 
 /// The interval table of tanh (`true`) or σ (`false`) (see [`SIGMOID_TABLE`]), for
@@ -649,8 +655,10 @@ mod arm {
     }
     /// One row of the gate pass (see `gate_rows`): leaves for label 2 at a shift outside
     /// 33..=62. z = acc_x·mx + acc_h·mh (64 bits, SMULL + SMLAL); t = hi >> (shift - 33);
-    /// (t + 1) >> 1; saturating add of the bias; SSAT to i16; then the interval z >> 7 (one
-    /// LDRD of [lo·2^7 + 2^6, hi - lo]) at position z & 127: (a + d·f) >> 7.
+    /// (t + 1) >> 1; saturating add of the bias; then the interval: z >> 7 saturated to
+    /// -256..=255 (one SSAT: the table's end intervals are flat, so the position z & 127 of an
+    /// unsaturated z gives the value of the saturated one), its word `lo << 16 | step` (one
+    /// LDR, r12 = 2^6): lo + ((step·pos + 2^6) >> 7).
     macro_rules! GATE_ROW {
         () => {
             "ldm r2!, {{r4, r5, r6, r7}}
@@ -664,19 +672,21 @@ mod arm {
              add r11, r11, #1
              asr r11, r11, #1
              qadd r11, r11, r6
-             ssat r11, #16, r11
-             asr r8, r11, #7
-             add r8, r3, r8, lsl #3
-             ldrd r9, r10, [r8]
+             ssat r8, #9, r11, asr #7
+             ldr r9, [r3, r8, lsl #2]
              and r11, r11, #127
-             mla r9, r10, r11, r9
-             asr r9, r9, #7
+             smlabb r10, r9, r11, r12
+             asr r10, r10, #7
+             add r9, r10, r9, asr #16
              str r9, [r0], #8"
         };
     }
     /// One unit of the cell update (see `cell_update`):
     /// c' = sat16(((f·c + 2^14) >> 15) + ((i·g + half) >> ig_shift)); q = sat16((c'·q_mul +
-    /// q_add) >> 3), Q3.12; tanh(q) by the table; h' = sat16((o·tanh(c') + 2^14) >> 15).
+    /// q_add) >> 3), Q3.12; tanh(q) by the table; h' = sat16((o·tanh(c') + 2^14) >> 15). The
+    /// lookup takes q's interval as v >> 10 saturated to -256..=255 and its position as bits
+    /// 3..9 of v = c'·q_mul + q_add (unsaturated: the table's end intervals are flat), scaled
+    /// by 2^8 so that the rounding constant is r6's 2^14: lo + ((step·pos·2^8 + 2^14) >> 15).
     macro_rules! CELL_UNIT {
         () => {
             "ldr r11, [r0, r1]
@@ -690,13 +700,13 @@ mod arm {
              ssat r12, #16, r12
              strh r12, [r3, #{coff}]
              smlabb r12, r12, r9, r10
-             ssat r12, #16, r12, asr #3
-             asr r11, r12, #7
-             add r11, r5, r11, lsl #3
-             ldrd r11, lr, [r11]
-             and r12, r12, #127
-             mla r11, lr, r12, r11
-             asr r11, r11, #7
+             ssat r11, #9, r12, asr #10
+             ubfx r12, r12, #3, #7
+             lsl r12, r12, #8
+             ldr r11, [r5, r11, lsl #2]
+             smlabb lr, r11, r12, r6
+             asr lr, lr, #15
+             add r11, lr, r11, asr #16
              ldr r12, [r2], #8
              smlabb r11, r12, r11, r6
              ssat r11, #16, r11, asr #15
@@ -742,22 +752,24 @@ mod arm {
             return 0;
         }
         let range = acc[..n].as_mut_ptr_range();
-        // Entry 256 (in bounds): the interval of z = 0; z >> 7 is in -256..=255.
-        let mid: *const [i32; 2] = &table[256];
+        // Entry 256 (in bounds): the interval of z = 0; the SSAT keeps z >> 7 in -256..=255.
+        let mid: *const u32 = &table[256];
         let end: *mut [i32; 2];
         // SAFETY: the loop reads params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
         // reads and writes acc[r] for r < n, stopping at `range.end` or at the first row whose
         // shift is outside 33..=62 (before touching its `acc`); the table index
-        // 256 + (z >> 7) with z a saturated i16 is in 0..=511, inside `table`. It saves and
+        // 256 + (z >> 7 saturated to -256..=255) is in 0..=511, inside `table`. It saves and
         // restores r4-r11 and changes no memory but `acc`.
         unsafe {
             core::arch::asm!(
                 "push {{r4-r11}}",
                 // Four rows per loop pass; a count of 4m + 3, 4m + 2 or 4m + 1 enters at the
-                // second, third or fourth.
-                "ands r12, r12, #3",
+                // second, third or fourth. r12: the lookup's rounding constant 2^6 (MOV.W leaves
+                // the flags).
+                "ands r4, r12, #3",
+                "mov.w r12, #64",
                 "beq 1f",
-                "cmp r12, #2",
+                "cmp r4, #2",
                 "bhi 3f",
                 "beq 4f",
                 "b 5f",
@@ -786,9 +798,11 @@ mod arm {
 
     /// One folded row of `gate_rows_folded`: the sums (two LDRs, pipelined after the previous
     /// row's STR), the parameters mx, mh, C, d (LDM), z = C·2^32 + acc_x·mx + acc_h·mh in
-    /// r10:r6 (SMLAL × 2 onto C as the high word), t = hi >> d, SSAT to i16, then the interval
-    /// t >> 7 (two LDRs at the table's middle + 8·i and + 8·i + 4, register offsets) at the
-    /// position t & 127: (a + d·f) >> 7.
+    /// r10:r6 (SMLAL × 2 onto C as the high word), t = hi >> d, then the interval t >> 7
+    /// saturated to -256..=255 (one SSAT, which stands for the saturation of t to i16: the
+    /// table's end intervals are flat, so the position t & 127 of an unsaturated t gives the
+    /// value of the saturated one), its word `lo << 16 | step` (one LDR, register offset), and
+    /// lo + ((step·pos + 2^6) >> 7) with r12 = 2^6.
     macro_rules! GATE_ROW_FOLDED {
         () => {
             "ldr r8, [r0]
@@ -798,13 +812,12 @@ mod arm {
              smlal r10, r6, r8, r4
              smlal r10, r6, r9, r5
              asr r6, r6, r7
-             ssat r6, #16, r6
-             asr r8, r6, #7
-             ldr r9, [r3, r8, lsl #3]
-             ldr r10, [r12, r8, lsl #3]
+             ssat r8, #9, r6, asr #7
+             ldr r9, [r3, r8, lsl #2]
              and r6, r6, #127
-             mla r9, r10, r6, r9
-             asr r9, r9, #7
+             smlabb r10, r9, r6, r12
+             asr r10, r10, #7
+             add r9, r10, r9, asr #16
              str r9, [r0], #8"
         };
     }
@@ -824,13 +837,12 @@ mod arm {
              smlal r10, r6, r8, r4
              smlal r10, r6, r9, r5
              asr r6, r6, r7
-             ssat r6, #16, r6
-             asr r8, r6, #7
-             ldr r9, [r3, r8, lsl #3]
-             ldr r10, [r12, r8, lsl #3]
+             ssat r8, #9, r6, asr #7
+             ldr r9, [r3, r8, lsl #2]
              and r6, r6, #127
-             mla r9, r10, r6, r9
-             asr r9, r9, #7
+             smlabb r10, r9, r6, r12
+             asr r10, r10, #7
+             add r9, r10, r9, asr #16
              str.w r9, [r0, #(8 * slg_j)]
              .set slg_j, slg_j + 1"
         };
@@ -848,17 +860,15 @@ mod arm {
             return;
         }
         let range = acc[..n].as_mut_ptr_range();
-        // Entry 256 (in bounds): the interval of t = 0; t >> 7 is in -256..=255. Its second
-        // word, for the register-offset loads.
-        let mid: *const [i32; 2] = &table[256];
-        let mid_hi: *const i32 = &table[256][1];
+        // Entry 256 (in bounds): the interval of t = 0; the SSAT keeps t >> 7 in -256..=255.
+        let mid: *const u32 = &table[256];
         // The first 8·⌊n / 8⌋ rows in passes of 8 (fixed offsets, one pointer update a pass),
         // the rest one row a pass; r1 is where the 8-row passes end.
         let eights = range.start.wrapping_add(n & !7);
         // SAFETY: the loops read params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
         // read and write acc[r] for r < n: 8-row passes up to `eights` (a multiple of 8 rows
         // from the start), then single rows up to `range.end` (n ≥ 1 rows); the table
-        // words at 8·(256 + (t >> 7)) and + 4 with t a saturated i16 are in entries 0..=511,
+        // word at 4·(256 + (t >> 7 saturated to -256..=255)) is one of entries 0..=511,
         // inside `table`. It saves and restores r4-r10 and changes no memory but `acc`.
         unsafe {
             core::arch::asm!(
@@ -887,7 +897,7 @@ mod arm {
                 in("r1") eights,
                 inout("r2") params.as_ptr() => _,
                 in("r3") mid,
-                in("r12") mid_hi,
+                in("r12") 64,
                 in("r11") range.end,
             );
         }
@@ -991,7 +1001,7 @@ mod arm {
         go: *const [i32; 2],
         h: *mut i16,
         h_end: *mut i16,
-        table: *const [i32; 2],
+        table: *const u32,
         ig_half: i32,
         ig_shift: u32,
         q_mul: i32,
@@ -1033,7 +1043,7 @@ mod arm {
         // SAFETY: for j < hn the loop reads gates[j], gates[hn + j], gates[2·hn + j] and
         // gates[3·hn + j] (inside `gates`: 4·hn ≤ len), reads and writes h[j] and c[j] (c is
         // C_OFFSET bytes after h, as checked; both exclusively borrowed, hn ≤ MAX_HIDDEN), and
-        // reads the table at 256 + (q >> 7) with q a saturated i16: 0..=511. It saves and
+        // reads the table at 256 + (v >> 10 saturated to -256..=255): 0..=511. It saves and
         // restores r4-r11 and lr.
         unsafe {
             core::arch::asm!(
@@ -2084,43 +2094,28 @@ mod x86 {
     use core::arch::x86_64::{
         __m128i, __m256i, _mm_cvtsi32_si128, _mm_loadu_si128, _mm_storeu_si128, _mm256_add_epi32,
         _mm256_add_epi64, _mm256_and_si256, _mm256_blend_epi32, _mm256_blendv_epi8,
-        _mm256_castsi256_si128, _mm256_cvtepi16_epi32, _mm256_extracti128_si256,
-        _mm256_i32gather_epi64, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_max_epi32,
-        _mm256_min_epi32, _mm256_mul_epi32, _mm256_mullo_epi32, _mm256_or_si256,
-        _mm256_packs_epi32, _mm256_permute2x128_si256, _mm256_permute4x64_epi64,
-        _mm256_permutevar8x32_epi32, _mm256_set1_epi32, _mm256_setr_epi32, _mm256_setzero_si256,
-        _mm256_sll_epi32, _mm256_sra_epi32, _mm256_srai_epi32, _mm256_srli_epi64,
-        _mm256_storeu_si256, _mm512_dpwssd_epi32, _mm512_loadu_si512, _mm512_set1_epi32,
-        _mm512_setzero_si512, _mm512_storeu_si512,
+        _mm256_castsi256_si128, _mm256_cvtepi16_epi32, _mm256_i32gather_epi32, _mm256_loadu_si256,
+        _mm256_madd_epi16, _mm256_max_epi32, _mm256_min_epi32, _mm256_mul_epi32,
+        _mm256_mullo_epi32, _mm256_or_si256, _mm256_packs_epi32, _mm256_permute4x64_epi64,
+        _mm256_set1_epi32, _mm256_setzero_si256, _mm256_sll_epi32, _mm256_sra_epi32,
+        _mm256_srai_epi32, _mm256_srli_epi64, _mm256_storeu_si256, _mm512_dpwssd_epi32,
+        _mm512_loadu_si512, _mm512_set1_epi32, _mm512_setzero_si512, _mm512_storeu_si512,
     };
 
     /// 8 lanes of `table` lookups ([`crate::activation::lookup`]) at the Q3.12 inputs `x`
     /// (i32 lanes within the i16 range): interval k = (x >> 7) + 256 (0..=511), position
-    /// x & 127, `(lo·2^7 + 2^6 + (hi − lo)·pos) >> 7`. Each interval's two words come as one
-    /// 64-bit element: two 4-element gathers (cheaper than two 8-element ones of 32 bits),
-    /// then split into the first and second words.
+    /// x & 127, its word `lo << 16 | step` by one 8-lane gather, lo + ((step·pos + 2^6) >> 7).
     #[target_feature(enable = "avx2")]
     fn lookup8(table: &IntervalTable, x: __m256i) -> __m256i {
         let k = _mm256_add_epi32(_mm256_srai_epi32::<7>(x), _mm256_set1_epi32(256));
         let pos = _mm256_and_si256(x, _mm256_set1_epi32(127));
-        let base = table.as_ptr() as *const i64;
-        // SAFETY: k is in 0..=511 for every i16 input, so each 8-byte element k lies inside
-        // the table's 512 entries of [i32; 2] (`table` is a whole IntervalTable); AVX2 is on.
-        let (lo, hi) = unsafe {
-            (
-                _mm256_i32gather_epi64::<8>(base, _mm256_castsi256_si128(k)),
-                _mm256_i32gather_epi64::<8>(base, _mm256_extracti128_si256::<1>(k)),
-            )
-        };
-        // [a0 d0 a1 d1 | a2 d2 a3 d3] → [a0 a1 a2 a3 | d0 d1 d2 d3], then the halves joined.
-        let split = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
-        let (lo, hi) = (
-            _mm256_permutevar8x32_epi32(lo, split),
-            _mm256_permutevar8x32_epi32(hi, split),
-        );
-        let a = _mm256_permute2x128_si256::<0x20>(lo, hi);
-        let d = _mm256_permute2x128_si256::<0x31>(lo, hi);
-        _mm256_srai_epi32::<7>(_mm256_add_epi32(a, _mm256_mullo_epi32(d, pos)))
+        // SAFETY: k is in 0..=511 for every i16 input, so each 4-byte element k lies inside
+        // the table's 512 words (`table` is a whole IntervalTable); AVX2 is on.
+        let w = unsafe { _mm256_i32gather_epi32::<4>(table.as_ptr() as *const i32, k) };
+        let lo = _mm256_srai_epi32::<16>(w);
+        let step = _mm256_and_si256(w, _mm256_set1_epi32(0xFFFF));
+        let frac = _mm256_add_epi32(_mm256_mullo_epi32(step, pos), _mm256_set1_epi32(64));
+        _mm256_add_epi32(lo, _mm256_srai_epi32::<7>(frac))
     }
 
     /// sat16 of i32 lanes, still as i32 lanes.
