@@ -605,6 +605,32 @@ pub fn lstm_cell_update(
     }
 }
 
+/// The sums of one bin of the STFT's rectangular window ([`crate::features::stft`]):
+/// `(Σ x·cos, Σ x·sin)` with the samples `older` paired with `row[..older.len()]` and `newer`
+/// with the words after them, each word `cos as u16 | sin << 16` (the plan's twiddle rows). On
+/// a Cortex-M with the DSP extension in assembly (per sample one LDRSH, one LDR, SMLALBB and
+/// SMLALBT into two 64-bit sums, two samples a loop pass), elsewhere (and where `row` is
+/// shorter than the samples) [`stft_row_sums_portable`], which defines the result.
+#[inline]
+pub fn stft_row_sums(older: &[i16], newer: &[i16], row: &[u32]) -> (i64, i64) {
+    #[cfg(slipguard_dsp)]
+    if let Some(sums) = arm::stft_row_sums(older, newer, row) {
+        return sums;
+    }
+    stft_row_sums_portable(older, newer, row)
+}
+
+/// The reference of [`stft_row_sums`]: the i64 sums of the i16 products, up to the shorter of
+/// the samples and the row.
+pub fn stft_row_sums_portable(older: &[i16], newer: &[i16], row: &[u32]) -> (i64, i64) {
+    let (mut re, mut im) = (0i64, 0i64);
+    for (&x, &w) in older.iter().chain(newer).zip(row) {
+        re += x as i64 * (w as i16) as i64;
+        im += x as i64 * ((w >> 16) as i16) as i64;
+    }
+    (re, im)
+}
+
 #[cfg(slipguard_dsp)]
 mod arm {
     use super::{ASM_BLOCKS, ASM_X_BLOCKS, CellParams, IntervalTable, LstmRowParams};
@@ -1006,6 +1032,114 @@ mod arm {
         ig_shift: u32,
         q_mul: i32,
         q_add: i32,
+    }
+
+    /// One segment of `stft_row_sums`: `count` (a low register, consumed) samples from the
+    /// pointer `x` (advanced) with the row words from r12 (advanced) into r4:r5 (Σ x·cos) and
+    /// r6:r7 (Σ x·sin); an odd count takes one sample first. Labels `$a`, `$b`, `$c`.
+    macro_rules! STFT_SEGMENT {
+        ($x:literal, $count:literal, $a:literal, $b:literal, $c:literal) => {
+            concat!(
+                "lsrs ",
+                $count,
+                ", ",
+                $count,
+                ", #1\n",
+                "bcc ",
+                $a,
+                "f\n",
+                "ldrsh r8, [",
+                $x,
+                "], #2\n",
+                "ldr r9, [r12], #4\n",
+                "smlalbb r4, r5, r8, r9\n",
+                "smlalbt r6, r7, r8, r9\n",
+                $a,
+                ":\n",
+                "cbz ",
+                $count,
+                ", ",
+                $c,
+                "f\n",
+                $b,
+                ":\n",
+                "ldrsh r8, [",
+                $x,
+                "], #2\n",
+                "ldr r9, [r12], #4\n",
+                "ldrsh r10, [",
+                $x,
+                "], #2\n",
+                "ldr r11, [r12], #4\n",
+                "smlalbb r4, r5, r8, r9\n",
+                "smlalbt r6, r7, r8, r9\n",
+                "smlalbb r4, r5, r10, r11\n",
+                "smlalbt r6, r7, r10, r11\n",
+                "subs ",
+                $count,
+                ", ",
+                $count,
+                ", #1\n",
+                "bne ",
+                $b,
+                "b\n",
+                $c,
+                ":"
+            )
+        };
+    }
+
+    /// What `stft_row_sums` reads (LDM into r0-r3, r12, lr).
+    #[repr(C)]
+    struct StftRowArgs {
+        older: *const i16,
+        older_len: usize,
+        newer: *const i16,
+        newer_len: usize,
+        row: *const u32,
+        out: *mut [i64; 2],
+    }
+
+    /// See `super::stft_row_sums`; `None` where the row is shorter than the samples.
+    #[inline]
+    pub(super) fn stft_row_sums(older: &[i16], newer: &[i16], row: &[u32]) -> Option<(i64, i64)> {
+        if older.len().checked_add(newer.len())? > row.len() {
+            return None;
+        }
+        let mut out = [0i64; 2];
+        let args = StftRowArgs {
+            older: older.as_ptr(),
+            older_len: older.len(),
+            newer: newer.as_ptr(),
+            newer_len: newer.len(),
+            row: row.as_ptr(),
+            out: &mut out,
+        };
+        // SAFETY: reads older[..older_len] and newer[..newer_len] (halfwords inside both
+        // slices) and row[..older_len + newer_len] (inside `row`, checked above; `[u32]` is
+        // aligned), writes the two words pairs of `out` (a local [i64; 2], 8-byte aligned for
+        // STRD) and nothing else. It saves and restores r4-r11 and lr.
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "ldm r0, {{r0, r1, r2, r3, r12, lr}}",
+                "movs r4, #0",
+                "movs r5, #0",
+                "movs r6, #0",
+                "movs r7, #0",
+                STFT_SEGMENT!("r0", "r1", "2", "3", "4"),
+                STFT_SEGMENT!("r2", "r3", "5", "6", "7"),
+                "strd r4, r5, [lr]",
+                "strd r6, r7, [lr, #8]",
+                "pop {{r4-r11, lr}}",
+                inout("r0") &args as *const StftRowArgs => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+        Some((out[0], out[1]))
     }
 
     /// See `lstm_cell_update`.

@@ -550,6 +550,62 @@ fn check_isqrt() {
     harness::check_equal("isqrt_u32 == u32::isqrt (first n)", &first_bad, &None);
 }
 
+/// `dsp::stft_row_sums` (SMLALBB/SMLALBT on this target) against `stft_row_sums_portable` for
+/// every split of windows up to 48 samples (odd and even segment lengths, odd start addresses),
+/// random and extreme samples and twiddles, rows longer than the samples.
+fn check_stft_rows() {
+    let mut rng = Rng(0x57f7_0001);
+    let mut first_bad = None;
+    let mut x = [0i16; 49];
+    let mut row = [0u32; 50];
+    for pattern in 0..3u32 {
+        for n in 0..=48usize {
+            for v in x.iter_mut() {
+                let r = rng.next();
+                *v = match pattern {
+                    0 => r as i16,
+                    1 => i16::MIN,
+                    _ => {
+                        if r & 1 == 0 {
+                            i16::MIN
+                        } else {
+                            i16::MAX
+                        }
+                    }
+                };
+            }
+            for w in row.iter_mut() {
+                let r = rng.next();
+                *w = match pattern {
+                    0 => r,
+                    1 => 0x8000_8000,
+                    _ => [0x8000_8000, 0x7fff_7fff, 0x8000_7fff, 0x7fff_8000][(r % 4) as usize],
+                };
+            }
+            for head in 0..=n {
+                // Start at x[1] for odd addresses half of the time.
+                let at = (head + n) % 2;
+                let (newer, older) = x[at..at + n].split_at(head);
+                let got = slipguard_core::dsp::stft_row_sums(
+                    black_box(older),
+                    black_box(newer),
+                    &row[..n + head % 3],
+                );
+                let want =
+                    slipguard_core::dsp::stft_row_sums_portable(older, newer, &row[..n + head % 3]);
+                if got != want && first_bad.is_none() {
+                    first_bad = Some((pattern, n, head));
+                }
+            }
+        }
+    }
+    harness::check_equal(
+        "stft_row_sums asm == portable (first pattern, n, head)",
+        &first_bad,
+        &None,
+    );
+}
+
 /// `dot_i8_i16_fast` (assembly for whole groups of 8 on this target) against `dot_i8_i16`
 /// for every length 0..=MAX_N, random and extreme data, aligned and misaligned.
 fn check_dense_kernel() {
@@ -651,6 +707,7 @@ fn main() -> ! {
     check_cell_update();
     check_dense_kernel();
     check_isqrt();
+    check_stft_rows();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,
