@@ -713,6 +713,7 @@ mod arm {
     /// lookup takes q's interval as v >> 10 saturated to -256..=255 and its position as bits
     /// 3..9 of v = c'·q_mul + q_add (unsaturated: the table's end intervals are flat), scaled
     /// by 2^8 so that the rounding constant is r6's 2^14: lo + ((step·pos·2^8 + 2^14) >> 15).
+    /// c' is stored just before the table's and o's loads, so that the three pipeline.
     macro_rules! CELL_UNIT {
         () => {
             "ldr r11, [r0, r1]
@@ -724,16 +725,16 @@ mod arm {
              asr r12, r12, r8
              add r12, r12, r11, asr #15
              ssat r12, #16, r12
+             smlabb lr, r12, r9, r10
+             ssat r11, #9, lr, asr #10
+             ubfx lr, lr, #3, #7
+             lsl lr, lr, #8
              strh r12, [r3, #{coff}]
-             smlabb r12, r12, r9, r10
-             ssat r11, #9, r12, asr #10
-             ubfx r12, r12, #3, #7
-             lsl r12, r12, #8
              ldr r11, [r5, r11, lsl #2]
-             smlabb lr, r11, r12, r6
+             ldr r12, [r2], #8
+             smlabb lr, r11, lr, r6
              asr lr, lr, #15
              add r11, lr, r11, asr #16
-             ldr r12, [r2], #8
              smlabb r11, r12, r11, r6
              ssat r11, #16, r11, asr #15
              strh r11, [r3], #2"
@@ -1184,13 +1185,22 @@ mod arm {
                 "push {{r4-r11, lr}}",
                 "ldm r0, {{r0, r1, r2, r3, r4, r5, r7, r8, r9, r10}}",
                 "mov r6, #16384",
-                // Two units per loop pass; an odd count enters at the second.
+                // Four units per loop pass; a count of 4m + 3, 4m + 2 or 4m + 1 enters at the
+                // second, third or fourth (r11: 2 · (count mod 4)).
                 "sub r11, r4, r3",
-                "tst r11, #2",
-                "bne 3f",
+                "ands r11, r11, #6",
+                "beq 1f",
+                "cmp r11, #4",
+                "bhi 3f",
+                "beq 4f",
+                "b 5f",
                 "1:",
                 CELL_UNIT!(),
                 "3:",
+                CELL_UNIT!(),
+                "4:",
+                CELL_UNIT!(),
+                "5:",
                 CELL_UNIT!(),
                 "cmp r3, r4",
                 "bne 1b",
