@@ -605,30 +605,49 @@ pub fn lstm_cell_update(
     }
 }
 
-/// The sums of one bin of the STFT's rectangular window ([`crate::features::stft`]):
-/// `(Σ x·cos, Σ x·sin)` with the samples `older` paired with `row[..older.len()]` and `newer`
-/// with the words after them, each word `cos as u16 | sin << 16` (the plan's twiddle rows). On
-/// a Cortex-M with the DSP extension in assembly (per sample one LDRSH, one LDR, SMLALBB and
-/// SMLALBT into two 64-bit sums, two samples a loop pass), elsewhere (and where `row` is
-/// shorter than the samples) [`stft_row_sums_portable`], which defines the result.
-#[inline]
-pub fn stft_row_sums(older: &[i16], newer: &[i16], row: &[u32]) -> (i64, i64) {
+/// The sums of the STFT's rectangular-window bins ([`crate::features::stft`]): for bin b,
+/// `[Σ x·cos, Σ x·sin]` over the samples `older` then `newer` (n of them together) paired with
+/// row b of the plan's twiddle rows, `rows[b·n..(b + 1)·n]`, each word `cos as u16 | sin << 16`;
+/// one bin per element of `out` (uninitialised), returned initialised. On a Cortex-M with the
+/// DSP extension in one assembly call (per sample one LDRSH, one LDR, SMLALBB and SMLALBT into
+/// two 64-bit sums, two samples a loop pass), where `rows` holds every bin's row; elsewhere
+/// [`stft_bin_sums_rows_portable`], which defines the result (missing row words count as 0).
+pub fn stft_bin_sums_rows<'o>(
+    older: &[i16],
+    newer: &[i16],
+    rows: &[u32],
+    out: &'o mut [core::mem::MaybeUninit<[i64; 2]>],
+) -> &'o mut [[i64; 2]] {
     #[cfg(slipguard_dsp)]
-    if let Some(sums) = arm::stft_row_sums(older, newer, row) {
-        return sums;
+    let done = arm::stft_bin_sums_rows(older, newer, rows, out);
+    #[cfg(not(slipguard_dsp))]
+    let done = false;
+    if !done {
+        let n = older.len() + newer.len();
+        for (b, o) in out.iter_mut().enumerate() {
+            let row = rows.get(b * n..).unwrap_or(&[]);
+            o.write(stft_row_sums_portable(
+                older,
+                newer,
+                &row[..n.min(row.len())],
+            ));
+        }
     }
-    stft_row_sums_portable(older, newer, row)
+    // SAFETY: every element of `out` has been written, by the kernel (`arm::stft_bin_sums_rows`
+    // returns true only after writing all of them) or by the loop above; `MaybeUninit<T>` has
+    // the layout of `T`, and the returned borrow keeps `out` (exclusively) borrowed.
+    unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i64; 2]>(), out.len()) }
 }
 
-/// The reference of [`stft_row_sums`]: the i64 sums of the i16 products, up to the shorter of
-/// the samples and the row.
-pub fn stft_row_sums_portable(older: &[i16], newer: &[i16], row: &[u32]) -> (i64, i64) {
+/// The reference of [`stft_bin_sums_rows`] for one bin: the i64 sums of the i16 products of
+/// the samples (`older`, then `newer`) and the row's words, up to the shorter.
+pub fn stft_row_sums_portable(older: &[i16], newer: &[i16], row: &[u32]) -> [i64; 2] {
     let (mut re, mut im) = (0i64, 0i64);
     for (&x, &w) in older.iter().chain(newer).zip(row) {
         re += x as i64 * (w as i16) as i64;
         im += x as i64 * ((w >> 16) as i16) as i64;
     }
-    (re, im)
+    [re, im]
 }
 
 #[cfg(slipguard_dsp)]
@@ -1090,48 +1109,79 @@ mod arm {
         };
     }
 
-    /// What `stft_row_sums` reads (LDM into r0-r3, r12, lr).
+    /// What `stft_bin_sums_rows` reads: the segments (LDM into r0-r3 for every bin), then the
+    /// rows, the first output and one past the last (at +16, +20, +24).
     #[repr(C)]
     struct StftRowArgs {
         older: *const i16,
         older_len: usize,
         newer: *const i16,
         newer_len: usize,
-        row: *const u32,
+        rows: *const u32,
         out: *mut [i64; 2],
+        out_end: *mut [i64; 2],
     }
 
-    /// See `super::stft_row_sums`; `None` where the row is shorter than the samples.
+    /// See `super::stft_bin_sums_rows`: true after writing every element of `out`; false,
+    /// writing nothing, where `rows` does not hold every bin's row.
     #[inline]
-    pub(super) fn stft_row_sums(older: &[i16], newer: &[i16], row: &[u32]) -> Option<(i64, i64)> {
-        if older.len().checked_add(newer.len())? > row.len() {
-            return None;
+    pub(super) fn stft_bin_sums_rows(
+        older: &[i16],
+        newer: &[i16],
+        rows: &[u32],
+        out: &mut [MaybeUninit<[i64; 2]>],
+    ) -> bool {
+        let Some(words) = older
+            .len()
+            .checked_add(newer.len())
+            .and_then(|n| n.checked_mul(out.len()))
+        else {
+            return false;
+        };
+        if words > rows.len() {
+            return false;
         }
-        let mut out = [0i64; 2];
+        if out.is_empty() {
+            return true;
+        }
+        let range = out.as_mut_ptr_range();
         let args = StftRowArgs {
             older: older.as_ptr(),
             older_len: older.len(),
             newer: newer.as_ptr(),
             newer_len: newer.len(),
-            row: row.as_ptr(),
-            out: &mut out,
+            rows: rows.as_ptr(),
+            out: range.start.cast(),
+            out_end: range.end.cast(),
         };
-        // SAFETY: reads older[..older_len] and newer[..newer_len] (halfwords inside both
-        // slices) and row[..older_len + newer_len] (inside `row`, checked above; `[u32]` is
-        // aligned), writes the two words pairs of `out` (a local [i64; 2], 8-byte aligned for
-        // STRD) and nothing else. It saves and restores r4-r11 and lr.
+        // SAFETY: per bin (out.len() ≥ 1 of them) it reads older[..older_len] and
+        // newer[..newer_len] (halfwords inside both slices) and the next older_len + newer_len
+        // words of `rows` (all bins together `words` ≤ rows.len(), checked above; `[u32]` is
+        // aligned), and writes one [i64; 2] of `out` (8-byte aligned for STRD, exclusively
+        // borrowed), until the output pointer reaches `out`'s end. It saves and restores r4-r11
+        // and lr and restores sp (the arguments' address pushed below the saved registers).
         unsafe {
             core::arch::asm!(
                 "push {{r4-r11, lr}}",
-                "ldm r0, {{r0, r1, r2, r3, r12, lr}}",
+                "push {{r0}}",
+                "ldr r12, [r0, #16]",
+                "ldr lr, [r0, #20]",
+                "1:",
+                "ldr r0, [sp]",
+                "ldm r0, {{r0, r1, r2, r3}}",
                 "movs r4, #0",
                 "movs r5, #0",
                 "movs r6, #0",
                 "movs r7, #0",
                 STFT_SEGMENT!("r0", "r1", "2", "3", "4"),
                 STFT_SEGMENT!("r2", "r3", "5", "6", "7"),
-                "strd r4, r5, [lr]",
-                "strd r6, r7, [lr, #8]",
+                "strd r4, r5, [lr], #8",
+                "strd r6, r7, [lr], #8",
+                "ldr r8, [sp]",
+                "ldr r8, [r8, #24]",
+                "cmp lr, r8",
+                "bne 1b",
+                "add sp, sp, #4",
                 "pop {{r4-r11, lr}}",
                 inout("r0") &args as *const StftRowArgs => _,
                 out("r1") _,
@@ -1140,7 +1190,7 @@ mod arm {
                 out("r12") _,
             );
         }
-        Some((out[0], out[1]))
+        true
     }
 
     /// See `lstm_cell_update`.

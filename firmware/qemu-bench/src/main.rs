@@ -550,14 +550,15 @@ fn check_isqrt() {
     harness::check_equal("isqrt_u32 == u32::isqrt (first n)", &first_bad, &None);
 }
 
-/// `dsp::stft_row_sums` (SMLALBB/SMLALBT on this target) against `stft_row_sums_portable` for
-/// every split of windows up to 48 samples (odd and even segment lengths, odd start addresses),
-/// random and extreme samples and twiddles, rows longer than the samples.
+/// `dsp::stft_bin_sums_rows` (SMLALBB/SMLALBT on this target) against
+/// `stft_row_sums_portable` per bin, for every split of windows up to 48 samples (odd and even
+/// segment lengths, odd start addresses), 1 to 5 bins, random and extreme samples and twiddles.
 fn check_stft_rows() {
+    use core::mem::MaybeUninit;
     let mut rng = Rng(0x57f7_0001);
     let mut first_bad = None;
     let mut x = [0i16; 49];
-    let mut row = [0u32; 50];
+    let mut rows = [0u32; 5 * 48 + 3];
     for pattern in 0..3u32 {
         for n in 0..=48usize {
             for v in x.iter_mut() {
@@ -574,7 +575,7 @@ fn check_stft_rows() {
                     }
                 };
             }
-            for w in row.iter_mut() {
+            for w in rows.iter_mut() {
                 let r = rng.next();
                 *w = match pattern {
                     0 => r,
@@ -586,21 +587,26 @@ fn check_stft_rows() {
                 // Start at x[1] for odd addresses half of the time.
                 let at = (head + n) % 2;
                 let (newer, older) = x[at..at + n].split_at(head);
-                let got = slipguard_core::dsp::stft_row_sums(
+                let bins = 1 + head % 5;
+                let mut out = [MaybeUninit::uninit(); 5];
+                let got = slipguard_core::dsp::stft_bin_sums_rows(
                     black_box(older),
                     black_box(newer),
-                    &row[..n + head % 3],
+                    &rows[..bins * n + head % 3],
+                    &mut out[..bins],
                 );
-                let want =
-                    slipguard_core::dsp::stft_row_sums_portable(older, newer, &row[..n + head % 3]);
-                if got != want && first_bad.is_none() {
-                    first_bad = Some((pattern, n, head));
+                for (b, g) in got.iter().enumerate() {
+                    let row = &rows[b * n..(b + 1) * n];
+                    let want = slipguard_core::dsp::stft_row_sums_portable(older, newer, row);
+                    if *g != want && first_bad.is_none() {
+                        first_bad = Some((pattern, n, head, b));
+                    }
                 }
             }
         }
     }
     harness::check_equal(
-        "stft_row_sums asm == portable (first pattern, n, head)",
+        "stft_bin_sums_rows asm == portable (first pattern, n, head, bin)",
         &first_bad,
         &None,
     );

@@ -381,9 +381,11 @@ impl StftPlan {
             // rounding), so Re = 2^15 · Σ x·cos and the same for Im: the sums of i16 products
             // (|Σ| < 48 · 2^30 < 2^36, shifted < 2^51), the same i64 numbers as below. Each
             // bin's row pairs its first n − head twiddles with the older samples, the rest
-            // with the newer ones (`dsp::stft_row_sums`, SMLALBB/SMLALBT on the M4).
-            for (row, o) in self.rows.chunks_exact(n).zip(out.iter_mut().take(bins)) {
-                let (re, im) = crate::dsp::stft_row_sums(older, newer, row);
+            // with the newer ones (`dsp::stft_bin_sums_rows`, SMLALBB/SMLALBT on the M4).
+            let mut sums = [core::mem::MaybeUninit::uninit(); MAX_BANDS];
+            let bins = bins.min(out.len()).min(MAX_BANDS);
+            let sums = crate::dsp::stft_bin_sums_rows(older, newer, &self.rows, &mut sums[..bins]);
+            for (o, &[re, im]) in out.iter_mut().zip(sums.iter()) {
                 *o = self.magnitude(re << 15, im << 15);
             }
             return;
