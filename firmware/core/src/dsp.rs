@@ -1371,14 +1371,18 @@ mod arm {
         // x_chunks + h_chunks chunks of 16 bytes = 4·stride bytes), `x[..2·x_chunks]` and
         // `h[..2·h_chunks]` (aligned `[u32]`s, exactly those lengths) once per block, and
         // writes the 2·rows words of `out` (exclusively borrowed, the layout of [[i32; 2]],
-        // rows a multiple of 4); the chunk counts ≤ their unrolled copies keep the computed
-        // jumps inside the kernels, and the full-h kernel runs only at exactly
-        // MAX_BLOCK_H_CHUNKS h chunks. Both save and restore r4-r11, lr and sp.
+        // rows a multiple of 4); the chunk counts ≤ their unrolled copies keep the general
+        // kernel's computed jumps inside it, and a full-h kernel runs only at exactly
+        // MAX_BLOCK_H_CHUNKS h chunks and its own x chunk count. All save and restore r4-r11,
+        // lr and sp.
         unsafe {
-            if p.h_chunks == super::MAX_BLOCK_H_CHUNKS {
-                lstm_block_kernel_full(&p);
-            } else {
-                lstm_block_kernel(&p);
+            match (p.h_chunks == super::MAX_BLOCK_H_CHUNKS, p.x_chunks) {
+                (true, 1) => lstm_block_kernel_full_x1(&p),
+                (true, 2) => lstm_block_kernel_full_x2(&p),
+                (true, 3) => lstm_block_kernel_full_x3(&p),
+                (true, 4) => lstm_block_kernel_full_x4(&p),
+                (true, 5) => lstm_block_kernel_full_x5(&p),
+                _ => lstm_block_kernel(&p),
             }
         }
         true
@@ -1597,13 +1601,11 @@ mod arm {
 
     /// Chunks of the h part per pass of the full-h kernel's h loop.
     const FULL_PASS_CHUNKS: usize = 8;
-    /// Bytes of one `FULL_CHUNK`.
-    const FULL_CHUNK_BYTES: usize = 60;
     /// Bytes of the h part's activations (64 words): the h loop ends when r1 (4 bytes before
     /// the next pass) is a multiple of this, so the copy is placed with its end − 4 there.
     const FULL_H_BYTES: usize = 8 * super::MAX_BLOCK_H_CHUNKS;
-    /// Stack frame of the full-h kernel: out_end, the x entry, out, the x weights' offset, then
-    /// room for the activations (x ending where h starts) at any 256-byte phase.
+    /// Stack frame of the full-h kernels: out_end, a spare word, out, a spare word, then room
+    /// for the activations (x ending where h starts) at any 256-byte phase.
     const FULL_ACT_AT: usize = 16;
     const FULL_FRAME: usize = FULL_ACT_AT + 8 * super::MAX_BLOCK_X_CHUNKS + 2 * FULL_H_BYTES;
     // The h loop: whole passes; the pass-end test needs h to be 256 bytes; the 16-bit loads
@@ -1615,164 +1617,142 @@ mod arm {
             && FULL_FRAME.is_multiple_of(8)
     );
 
-    /// The blocked kernel for a full h part (MAX_BLOCK_H_CHUNKS chunks: the paper's models,
-    /// H = 128) and any x part up to MAX_BLOCK_X_CHUNKS, laid out for the STM32F4's flash: the
-    /// whole block loop (about 0.9 KiB) stays in the ART accelerator's 1 KiB instruction cache
-    /// after the first block, instead of streaming a 2.5 KiB straight-line body from flash at
-    /// 16 bytes per 6 cycles for each of the 128 blocks. The activations are copied once to the
-    /// stack, x ending where h starts, h placed so that the address 4 bytes before its end is a
-    /// multiple of 256. Per block: the x part, unrolled and entered at its first chunk (a
-    /// computed jump), reads chunk position p at `r1 + 8p + 4` and `r0 + 16p + 4`; then the h
-    /// loop, 4 passes of 8 chunks whose last loads advance r1 and r0 (writeback), until r1's
-    /// low byte is 0; 19 cycles per chunk of 16 MACs, 16-bit loads.
+    /// Defines `$name`, the blocked kernel for a full h part (MAX_BLOCK_H_CHUNKS chunks: the
+    /// paper's models, H = 128) and exactly `$x` x chunks (one function per count, 1 to
+    /// MAX_BLOCK_X_CHUNKS, so that the block loop has no computed jump and no run-time offset),
+    /// laid out for the STM32F4's flash: the whole block loop (0.6 to 0.9 KiB) stays in the ART
+    /// accelerator's 1 KiB instruction cache after the first block, instead of streaming a
+    /// 2.5 KiB straight-line body from flash at 16 bytes per 6 cycles for each of the 128
+    /// blocks. The activations are copied once to the stack, x ending where h starts, h placed
+    /// so that the address 4 bytes before its end is a multiple of 256. Per block: the x part,
+    /// unrolled, reads chunk position p at `r1 + 8p + 4` and `r0 + 16p + 4`, its last loads
+    /// moving both bases on to the h part; then the h loop, 4 passes of 8 chunks whose last
+    /// loads advance r1 and r0 (writeback), until r1's low byte is 0; 19 cycles per chunk of 16
+    /// MACs, 16-bit loads; then the loop's direct branch back.
     ///
-    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_blocks`] checks,
-    /// with exactly MAX_BLOCK_H_CHUNKS h chunks.
-    #[inline(never)]
-    unsafe fn lstm_block_kernel_full(p: &BlockParams) {
-        // Registers in the block loop: r0 weights, r1 activations (each 4 bytes before the
-        // current position 0), r2-r3 activation words, r4-r7 weight words, r8-r12 and lr the
-        // accumulators. Stack: [sp] out_end − 4, [sp+4] the x entry, [sp+8] out − 4 (the block's
-        // last store writes it back), [sp+12] 16 · (x chunks missing from MAX_BLOCK_X_CHUNKS),
-        // then the activation area.
-        // SAFETY: see the caller; every memory access is inside the buffers `p` describes or
-        // the kernel's own stack frame (x's copy starts at h − 8 · x chunks ≥ the area's start;
-        // h's end is at most the frame's end).
-        unsafe {
-            core::arch::asm!(
-                "push {{r4-r11, lr}}",
-                "sub sp, sp, #{frame}",
-                // The output pointers 4 bytes early: the block's last store writes back.
-                "ldr r1, [r0, #16]",
-                "subs r1, r1, #4",
-                "str r1, [sp, #0]",
-                "ldr r1, [r0, #12]",
-                "subs r1, r1, #4",
-                "str r1, [sp, #8]",
-                // x entry: the end of the unrolled x chunks − 4 − x chunks · 60 (the last chunk
-                // is 64 bytes), or with no x part the stub that moves the bases on (ADRs on a
-                // word boundary, as in `lstm_kernel`).
-                "ldr r3, [r0, #20]",
-                "movs r4, #{chunk_bytes}",
-                ".p2align 2",
-                "adr.w r5, 12f",
-                "subs r5, r5, #4",
-                "mls r5, r3, r4, r5",
-                "cbnz r3, 17f",
-                ".p2align 2",
-                "adr.w r5, 15f",
-                "17:",
-                "orr r5, r5, #1",
-                "str r5, [sp, #4]",
-                "rsb r4, r3, #{xmax}",
-                "lsls r4, r4, #4",
-                "str r4, [sp, #12]",
-                // h's start (r12): the lowest address ≥ the area + 8 · MAX x chunks that is 4
-                // more than a multiple of 256.
-                "addw r12, sp, #({act_at} + 8 * {xmax} + 251)",
-                "bic r12, r12, #255",
-                "add.w r12, r12, #4",
-                // Copy x (2 words per chunk) to end at h's start, then h after it.
-                "sub.w r2, r12, r3, lsl #3",
-                "ldr r1, [r0, #4]",
-                "cbz r3, 13f",
-                "14:",
-                "ldmia r1!, {{r4, r5}}",
-                "stmia r2!, {{r4, r5}}",
-                "subs r3, r3, #1",
-                "bne 14b",
-                "13:",
-                "mov r2, r12",
-                "ldr r1, [r0, #8]",
-                "movs r3, #{hpasses}",
-                "10:",
-                "ldmia r1!, {{r4-r11}}",
-                "stmia r2!, {{r4-r11}}",
-                "subs r3, r3, #1",
-                "bne 10b",
-                // r0: the first block's weights − the missing x chunks' 16 bytes each − 4; r1:
-                // the x area (position 0) − 4.
-                "ldr r3, [sp, #12]",
-                "ldr r0, [r0, #0]",
-                "subs r0, r0, r3",
-                "subs r0, r0, #4",
-                "subw r1, r12, #(8 * {xmax} + 4)",
-                FULL_CLEAR!("r2"),
-                "ldr pc, [sp, #4]",
-                // No x part: the bases as the x part's last chunk leaves them.
-                "15:",
-                "adds r0, #(16 * {xmax})",
-                "adds r1, #(8 * {xmax})",
-                "b 12f",
-                // The block loop, on a 1 KiB boundary: it fits the ART's 64 lines of 16 bytes
-                // (0.9 KiB; the bench's per-function stall shows it), and no instruction of it sits at the end of a 1 KiB page
-                // (where QEMU ends a translation block and the cycle model charges a refill).
-                // x part: entered at its first chunk, accumulators clear; its last chunk moves
-                // r0 and r1 on to the h part.
-                ".p2align 10",
-                "11:",
-                ".set slg_p, 0",
-                ".rept {xmax} - 1",
-                FULL_CHUNK!(),
-                ".endr",
-                FULL_CHUNK_XLAST!(),
-                "12:",
-                ".if (12b - 11b) != {chunk_bytes} * {xmax} + 4",
-                ".error \"dsp full-h kernel: an x chunk is not 60 bytes\"",
-                ".endif",
-                FULL_EXTRACT!(),
-                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0] (r2 = out − 4).
-                "ldr r2, [sp, #8]",
-                "str.w r10, [r2, #4]",
-                "str.w r8, [r2, #12]",
-                "str.w lr, [r2, #20]",
-                "str.w r11, [r2, #28]",
-                FULL_CLEAR!("r3"),
-                // h loop: passes of 8 chunks until r1's low byte is 0 (after the 4th), on a
-                // word boundary (its 32-bit instructions stay word-aligned).
-                ".p2align 2",
-                "20:",
-                ".set slg_p, 0",
-                ".rept {pass} - 1",
-                FULL_CHUNK!(),
-                ".endr",
-                FULL_CHUNK_LAST!(),
-                "lsls r2, r1, #24",
-                "bne.w 20b",
-                FULL_EXTRACT!(),
-                "ldr r2, [sp, #8]",
-                "ldr r3, [sp, #0]",
-                "ldr r4, [sp, #12]",
-                "str.w r10, [r2, #8]",
-                "str.w r8, [r2, #16]",
-                "str.w lr, [r2, #24]",
-                "str.w r11, [r2, #32]!",
-                "str r2, [sp, #8]",
-                // Back to the x bases: r0 is 4 bytes before the next block, r1 at h's end − 4.
-                "subs r0, r0, r4",
-                "subw r1, r1, #({h_bytes} + 8 * {xmax})",
-                FULL_CLEAR!("r4"),
-                "cmp r2, r3",
-                "beq.n 9f",
-                "ldr pc, [sp, #4]",
-                "9:",
-                "add sp, sp, #{frame}",
-                "pop {{r4-r11, lr}}",
-                frame = const FULL_FRAME,
-                act_at = const FULL_ACT_AT,
-                h_bytes = const FULL_H_BYTES,
-                xmax = const super::MAX_BLOCK_X_CHUNKS,
-                hpasses = const super::MAX_BLOCK_H_CHUNKS / 4,
-                pass = const FULL_PASS_CHUNKS,
-                chunk_bytes = const FULL_CHUNK_BYTES,
-                inout("r0") p as *const BlockParams => _,
-                out("r1") _,
-                out("r2") _,
-                out("r3") _,
-                out("r12") _,
-            );
-        }
+    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_blocks`]
+    /// checks, with exactly MAX_BLOCK_H_CHUNKS h chunks and `$x` x chunks.
+    macro_rules! full_kernel {
+        ($name:ident, $x:literal) => {
+            #[inline(never)]
+            unsafe fn $name(p: &BlockParams) {
+                // Registers in the block loop: r0 weights, r1 activations (each 4 bytes before
+                // the current position 0), r2-r3 activation words, r4-r7 weight words, r8-r12
+                // and lr the accumulators. Stack: [sp] out_end − 4, [sp+8] out − 4 (the block's
+                // last store writes it back), then the activation area.
+                // SAFETY: see the caller; every memory access is inside the buffers `p`
+                // describes or the kernel's own stack frame (x's copy starts at h − 8 · x
+                // chunks ≥ the area's start; h's end is at most the frame's end).
+                unsafe {
+                    core::arch::asm!(
+                        "push {{r4-r11, lr}}",
+                        "sub sp, sp, #{frame}",
+                        // The output pointers 4 bytes early: the block's last store writes back.
+                        "ldr r1, [r0, #16]",
+                        "subs r1, r1, #4",
+                        "str r1, [sp, #0]",
+                        "ldr r1, [r0, #12]",
+                        "subs r1, r1, #4",
+                        "str r1, [sp, #8]",
+                        // h's start (r12): the lowest address ≥ the area + 8 · MAX x chunks
+                        // that is 4 more than a multiple of 256.
+                        "addw r12, sp, #({act_at} + 8 * {xmax} + 251)",
+                        "bic r12, r12, #255",
+                        "add.w r12, r12, #4",
+                        // Copy x (2 words per chunk) to end at h's start, then h after it.
+                        "sub.w r2, r12, #(8 * {x})",
+                        "ldr r1, [r0, #4]",
+                        "movs r3, #{x}",
+                        "14:",
+                        "ldmia r1!, {{r4, r5}}",
+                        "stmia r2!, {{r4, r5}}",
+                        "subs r3, r3, #1",
+                        "bne 14b",
+                        "ldr r1, [r0, #8]",
+                        "movs r3, #{hpasses}",
+                        "10:",
+                        "ldmia r1!, {{r4-r11}}",
+                        "stmia r2!, {{r4-r11}}",
+                        "subs r3, r3, #1",
+                        "bne 10b",
+                        // r0: the first block's weights − 4; r1: the x area (position 0) − 4.
+                        "ldr r0, [r0, #0]",
+                        "subs r0, r0, #4",
+                        "subw r1, r12, #(8 * {x} + 4)",
+                        FULL_CLEAR!("r2"),
+                        // Over the alignment padding.
+                        "b.w 11f",
+                        // The block loop, on a 1 KiB boundary: it fits the ART's 64 lines of 16
+                        // bytes (the bench's per-function stall shows it), and no instruction of
+                        // it sits at the end of a 1 KiB page (where QEMU ends a translation block
+                        // and the cycle model charges a refill). x part: accumulators clear; its
+                        // last chunk moves r0 and r1 on to the h part.
+                        ".p2align 10",
+                        "11:",
+                        ".set slg_p, 0",
+                        ".rept {x} - 1",
+                        FULL_CHUNK!(),
+                        ".endr",
+                        FULL_CHUNK_XLAST!(),
+                        FULL_EXTRACT!(),
+                        // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0] (r2 = out − 4).
+                        "ldr r2, [sp, #8]",
+                        "str.w r10, [r2, #4]",
+                        "str.w r8, [r2, #12]",
+                        "str.w lr, [r2, #20]",
+                        "str.w r11, [r2, #28]",
+                        FULL_CLEAR!("r3"),
+                        // h loop: passes of 8 chunks until r1's low byte is 0 (after the 4th),
+                        // on a word boundary (its 32-bit instructions stay word-aligned).
+                        ".p2align 2",
+                        "20:",
+                        ".set slg_p, 0",
+                        ".rept {pass} - 1",
+                        FULL_CHUNK!(),
+                        ".endr",
+                        FULL_CHUNK_LAST!(),
+                        "lsls r2, r1, #24",
+                        "bne.w 20b",
+                        FULL_EXTRACT!(),
+                        "ldr r2, [sp, #8]",
+                        "ldr r3, [sp, #0]",
+                        "str.w r10, [r2, #8]",
+                        "str.w r8, [r2, #16]",
+                        "str.w lr, [r2, #24]",
+                        "str.w r11, [r2, #32]!",
+                        "str r2, [sp, #8]",
+                        // Back to the x base: r0 is already 4 bytes before the next block, r1
+                        // at h's end − 4.
+                        "subw r1, r1, #({h_bytes} + 8 * {x})",
+                        FULL_CLEAR!("r4"),
+                        "cmp r2, r3",
+                        "bne.w 11b",
+                        "add sp, sp, #{frame}",
+                        "pop {{r4-r11, lr}}",
+                        x = const $x,
+                        frame = const FULL_FRAME,
+                        act_at = const FULL_ACT_AT,
+                        h_bytes = const FULL_H_BYTES,
+                        xmax = const super::MAX_BLOCK_X_CHUNKS,
+                        hpasses = const super::MAX_BLOCK_H_CHUNKS / 4,
+                        pass = const FULL_PASS_CHUNKS,
+                        inout("r0") p as *const BlockParams => _,
+                        out("r1") _,
+                        out("r2") _,
+                        out("r3") _,
+                        out("r12") _,
+                    );
+                }
+            }
+        };
     }
+    full_kernel!(lstm_block_kernel_full_x1, 1);
+    full_kernel!(lstm_block_kernel_full_x2, 2);
+    full_kernel!(lstm_block_kernel_full_x3, 3);
+    full_kernel!(lstm_block_kernel_full_x4, 4);
+    full_kernel!(lstm_block_kernel_full_x5, 5);
+    // One full-h kernel per x chunk count 1..=MAX_BLOCK_X_CHUNKS (see `lstm_blocks`).
+    const _: () = assert!(super::MAX_BLOCK_X_CHUNKS == 5);
 
     /// What the LSTM kernel reads (one pointer in r0; fields at fixed offsets).
     #[repr(C)]
