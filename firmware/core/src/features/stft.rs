@@ -576,6 +576,7 @@ impl Default for StftState {
 /// 1999) on top of `u32::isqrt` (itself Karatsuba from an 8-bit table), arranged so that its
 /// division is 32-bit (`UDIV` on the M4) rather than a 64-bit library call. Small arguments
 /// take the 32-bit path alone.
+#[inline(always)]
 fn isqrt_u64(n: u64) -> u32 {
     if n <= u64::from(u32::MAX) {
         return crate::dsp::isqrt_u32(n as u32);
