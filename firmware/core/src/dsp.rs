@@ -22,6 +22,8 @@
 //!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
 //!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
 //! - [`permute_q15_uninit`]: [`permute_q15`] into uninitialised memory (PKHBT/PKHTB).
+//! - [`stft_bin_sums_rows`]: the STFT's bin sums for a rectangular window (SMLALBB/SMLALBT);
+//!   reference [`stft_row_sums_portable`].
 //! - Host only (`std`), for the batched path [`crate::batch`]: [`batch_pair_sums`] (the
 //!   LSTM's and the dense layer's sums for many channels: i16-pair weights × lane-contiguous
 //!   activations, VPMADDWD tiles of 6 or 4 rows × 16 lanes), [`batch_gate_rows`] and
