@@ -47,13 +47,13 @@ pub const BAUD: f64 = 921_600.0;
 pub const FLAG_FRAME_S: f64 = 56.0 * 10.0 / BAUD;
 /// Modelled `App::infer` time of one frame with all 16 channels of the hand profile in contact
 /// (the worst case: the firmware runs the model only on the channels in contact) on the 168 MHz
-/// STM32F405: 45.0 % of a 40 Hz period in estimated Cortex-M4 cycles (`scripts/budgets.sh`, the
-/// cycle model with flash wait states and the flash's fetch bandwidth), 1.891 M cycles =
-/// 11.3 ms (11.0 ms with sequential fetch free and the earlier straight-line LSTM kernel). The
+/// STM32F405: 42.9 % of a 40 Hz period in estimated Cortex-M4 cycles (`scripts/budgets.sh`, the
+/// cycle model with flash wait states and the flash's fetch bandwidth), 1.803 M cycles =
+/// 10.7 ms (11.0 ms with sequential fetch free and the earlier straight-line LSTM kernel). The
 /// firmware infers a frame as soon as its last scan is in and sends it right after
 /// (`firmware/src/main.rs`). `scripts/budgets.sh` prints this value beside its estimate and
 /// says when they part by > 5 %.
-pub const INFERENCE_S: f64 = 0.0113;
+pub const INFERENCE_S: f64 = 0.0107;
 
 /// When a frame's flags reach the controller, counted from the frame's last sample.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -126,7 +126,7 @@ fn reaction_comes_one_frame_after_the_slip() {
         assert!((d - 2.0 * period).abs() < 0.0015, "trial {i}: {d:.4} s");
         let _ = off;
         // With the firmware's modelled latency the same flag arrives as soon as the frame is
-        // inferred: 1 period − INFERENCE_S (11.3 ms) − 0.61 ms sooner than at the deadline, to within the
+        // inferred: 1 period − INFERENCE_S (10.7 ms) − 0.61 ms sooner than at the deadline, to within the
         // 1 ms tick (the grip has not moved before the first raise, so the slip is the same).
         let fw = ControllerConfig {
             latency: Latency::MODELLED,

@@ -3,8 +3,9 @@
 //! Input: `i16` in Q3.12 (a gate pre-activation, [-8, 8)). Output: `i16` in Q0.15.
 //! Each table has 513 entries, one per 1/32 of the input range [-8, 8], generated at compile
 //! time by `const fn` from [`crate::const_math`]. Between entries the value is interpolated
-//! linearly on the low 7 bits of the input. The lookup tables store each interval as the pair
-//! `[lo·2^7 + 2^6, hi - lo]` (one LDRD, one MLA, one shift on the M4); a test checks every input
+//! linearly on the low 7 bits of the input. The lookup tables store each interval as one word,
+//! lo in the high halfword and hi - lo (≥ 0: both functions rise) in the low one (2 KiB a
+//! table, so both fit the M4's SRAM: one LDR, one SMLABB, two shifts); a test checks every input
 //! against the plain interpolation between the 513 values.
 //!
 //! Error against f64 at the exact Q3.12 input (over all 65 536 inputs, test
@@ -55,26 +56,36 @@ const SIGMOID_VALUES: [i16; ENTRIES] = build(false);
 /// tanh(x) on [-8, 8] in steps of 1/32, Q0.15.
 const TANH_VALUES: [i16; ENTRIES] = build(true);
 
-/// One interpolation interval k as the lookup uses it: `[lo·2^7 + 2^6, hi - lo]` with
-/// lo = values[k], hi = values[k + 1]. One 8-byte load (LDRD) per lookup gives both.
-const fn pairs(v: &[i16; ENTRIES]) -> [[i32; 2]; ENTRIES - 1] {
-    let mut t = [[0i32; 2]; ENTRIES - 1];
+/// One interpolation interval k as the lookup uses it: `lo << 16 | (hi - lo)` with
+/// lo = values[k], hi = values[k + 1]. One 4-byte load per lookup gives both. The steps are
+/// checked at compile time: within 0..=32767 (a non-negative i16, as SMLABB reads the low
+/// halfword), and 0 in the first and the last interval (the functions are flat there to the
+/// Q0.15 LSB), which lets the assembly take the interval from an unsaturated input: every
+/// input beyond the range falls into an end interval, whose value does not depend on the
+/// position (see [`crate::dsp::lstm_gate_rows_folded`]).
+const fn pairs(v: &[i16; ENTRIES]) -> [u32; ENTRIES - 1] {
+    let mut t = [0u32; ENTRIES - 1];
     let mut k = 0;
     while k < ENTRIES - 1 {
-        let lo = v[k] as i32;
-        t[k] = [
-            (lo << FRAC_BITS) + (1 << (FRAC_BITS - 1)),
-            v[k + 1] as i32 - lo,
-        ];
+        let (lo, step) = (v[k] as i32, v[k + 1] as i32 - v[k] as i32);
+        assert!(
+            step >= 0 && step <= i16::MAX as i32,
+            "interval step out of range"
+        );
+        assert!(
+            step == 0 || (k > 0 && k < ENTRIES - 2),
+            "end interval not flat"
+        );
+        t[k] = ((lo as u32) << 16) | step as u32;
         k += 1;
     }
     t
 }
 
-/// An activation's interval table: 512 entries `[lo·2^7 + 2^6, hi - lo]`, lo and hi the
-/// Q0.15 values at the interval's ends, so the first word is Q0.22 (the `<< 7` makes room for
-/// the 7 position bits, plus half an output LSB for rounding) and the second a Q0.15 step.
-pub type IntervalTable = [[i32; 2]; ENTRIES - 1];
+/// An activation's interval table: 512 words `lo << 16 | (hi - lo)`, lo and hi the Q0.15
+/// values at the interval's ends (lo an i16 in the high halfword, the Q0.15 step hi - lo in
+/// 0..=32767 in the low one; the first and last steps are 0).
+pub type IntervalTable = [u32; ENTRIES - 1];
 
 /// σ intervals (see [`pairs`]); the kernels read them from a static in [`crate::dsp`]
 /// (in RAM on the target, [`crate::dsp::interval_table`]).
@@ -90,17 +101,18 @@ pub fn lookup(table: &IntervalTable, x: i16) -> i16 {
 }
 
 /// Rounded linear interpolation between values[k] and values[k + 1] (`lo`, `hi`), k the top 9
-/// bits of `x + 32768`, at the position f = the low 7 bits:
-/// `lo + ((hi - lo)·f + 2^6) >> 7`, computed as `(lo·2^7 + 2^6 + (hi - lo)·f) >> 7`, which is
-/// the same number (lo·2^7 is a multiple of 2^7, so it passes through the floor unchanged).
+/// bits of `x + 32768`, at the position f = the low 7 bits: `lo + ((hi - lo)·f + 2^6) >> 7`.
 /// The result lies between lo and hi, so it fits in i16.
 #[inline(always)]
 fn interpolate(table: &IntervalTable, x: i16) -> i16 {
     // (x + 32768) >> 7 = (x >> 7) + 256, in 0..=511 for every i16.
     let k = ((x as i32 >> FRAC_BITS) + 256) as usize;
     let frac = x as i32 & ((1 << FRAC_BITS) - 1); // position in the interval, 0..127 of 128
-    let [a, d] = table[k & (ENTRIES - 2)];
-    ((a + d * frac) >> FRAC_BITS) as i16
+    let w = table[k & (ENTRIES - 2)];
+    // lo is the high halfword (arithmetic shift), the step the low one.
+    let (lo, step) = ((w as i32) >> 16, (w & 0xFFFF) as i32);
+    // The 2^6 rounds the step's share to nearest (ties up), 7 bits of position.
+    (lo + ((step * frac + (1 << (FRAC_BITS - 1))) >> FRAC_BITS)) as i16
 }
 
 #[cfg(test)]
@@ -152,6 +164,26 @@ mod tests {
         for x in i16::MIN..=i16::MAX {
             assert_eq!(sigmoid(x), reference(&SIGMOID_VALUES, x), "sigmoid({x})");
             assert_eq!(tanh(x), reference(&TANH_VALUES, x), "tanh({x})");
+        }
+    }
+
+    /// What the assembly relies on: the interval and position taken from an input that has not
+    /// been saturated to i16 (interval ⌊t / 2^7⌋ clamped to -256..=255, position t & 127) give
+    /// the lookup of the saturated input, because the end intervals are flat.
+    #[test]
+    fn unsaturated_inputs_give_the_saturated_lookup() {
+        for table in [&SIGMOID_INTERVALS, &TANH_INTERVALS] {
+            for t in (-(1 << 20)..(1 << 20))
+                .step_by(7)
+                .chain([i32::MIN, i32::MAX, -32769, 32768])
+            {
+                let k = ((t >> FRAC_BITS).clamp(-256, 255) + 256) as usize;
+                let w = table[k];
+                let (lo, step) = ((w as i32) >> 16, (w & 0xFFFF) as i32);
+                let got = lo + ((step * (t & 127) + 64) >> 7);
+                let want = lookup(table, t.clamp(-32768, 32767) as i16) as i32;
+                assert_eq!(got, want, "t = {t}");
+            }
         }
     }
 

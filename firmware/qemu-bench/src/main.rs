@@ -550,6 +550,68 @@ fn check_isqrt() {
     harness::check_equal("isqrt_u32 == u32::isqrt (first n)", &first_bad, &None);
 }
 
+/// `dsp::stft_bin_sums_rows` (SMLALBB/SMLALBT on this target) against
+/// `stft_row_sums_portable` per bin, for every split of windows up to 48 samples (odd and even
+/// segment lengths, odd start addresses), 1 to 5 bins, random and extreme samples and twiddles.
+fn check_stft_rows() {
+    use core::mem::MaybeUninit;
+    let mut rng = Rng(0x57f7_0001);
+    let mut first_bad = None;
+    let mut x = [0i16; 49];
+    let mut rows = [0u32; 5 * 48 + 3];
+    for pattern in 0..3u32 {
+        for n in 0..=48usize {
+            for v in x.iter_mut() {
+                let r = rng.next();
+                *v = match pattern {
+                    0 => r as i16,
+                    1 => i16::MIN,
+                    _ => {
+                        if r & 1 == 0 {
+                            i16::MIN
+                        } else {
+                            i16::MAX
+                        }
+                    }
+                };
+            }
+            for w in rows.iter_mut() {
+                let r = rng.next();
+                *w = match pattern {
+                    0 => r,
+                    1 => 0x8000_8000,
+                    _ => [0x8000_8000, 0x7fff_7fff, 0x8000_7fff, 0x7fff_8000][(r % 4) as usize],
+                };
+            }
+            for head in 0..=n {
+                // Start at x[1] for odd addresses half of the time.
+                let at = (head + n) % 2;
+                let (newer, older) = x[at..at + n].split_at(head);
+                let bins = 1 + head % 5;
+                let mut out = [MaybeUninit::uninit(); 5];
+                let got = slipguard_core::dsp::stft_bin_sums_rows(
+                    black_box(older),
+                    black_box(newer),
+                    &rows[..bins * n + head % 3],
+                    &mut out[..bins],
+                );
+                for (b, g) in got.iter().enumerate() {
+                    let row = &rows[b * n..(b + 1) * n];
+                    let want = slipguard_core::dsp::stft_row_sums_portable(older, newer, row);
+                    if *g != want && first_bad.is_none() {
+                        first_bad = Some((pattern, n, head, b));
+                    }
+                }
+            }
+        }
+    }
+    harness::check_equal(
+        "stft_bin_sums_rows asm == portable (first pattern, n, head, bin)",
+        &first_bad,
+        &None,
+    );
+}
+
 /// `dot_i8_i16_fast` (assembly for whole groups of 8 on this target) against `dot_i8_i16`
 /// for every length 0..=MAX_N, random and extreme data, aligned and misaligned.
 fn check_dense_kernel() {
@@ -651,6 +713,7 @@ fn main() -> ! {
     check_cell_update();
     check_dense_kernel();
     check_isqrt();
+    check_stft_rows();
 
     let model = match Model::from_bytes(&BLOB.0) {
         Ok(m) => m,

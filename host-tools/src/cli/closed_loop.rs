@@ -84,7 +84,7 @@ pub struct Args {
     #[arg(long)]
     pub no_rule: bool,
     /// When a frame's flags reach the controller: `firmware` = as the firmware runs (modelled
-    /// inference of a 16-channel frame, 11.3 ms, + 0.61 ms on the wire); `deadline` = the bound
+    /// inference of a 16-channel frame, 10.7 ms, + 0.61 ms on the wire); `deadline` = the bound
     /// the protocol guarantees (one period + 0.61 ms).
     #[arg(long, value_enum, default_value_t = LatencyArg::Firmware)]
     pub latency: LatencyArg,

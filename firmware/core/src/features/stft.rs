@@ -254,7 +254,17 @@ pub struct StftPlan {
     /// The 1/Σw factor: 2^(L+30) / S rounded, in [2^30, 2^31] (value 2^L/S in [1, 2], Q2.30
     /// unsigned). The reduced magnitude times `gain` >> 45 is the Q1.15 output.
     gain: u32,
+    /// For a rectangular window with `n_bins · N` ≤ [`ROW_WORDS`] (the paper's 10 × 20): bin b's
+    /// twiddles in sample order, word `b·N + n` = (cos, sin) of index (k·n) mod N as
+    /// `cos as u16 | sin << 16` (k = first_bin + b); zero otherwise. The step then reads them in
+    /// a row instead of stepping the index modulo N (see [`StftPlan::step`]).
+    rows: [u32; ROW_WORDS],
+    /// Whether `rows` holds the bins.
+    by_rows: bool,
 }
+
+/// Words of [`StftPlan`]'s per-bin twiddle rows (1 KiB).
+const ROW_WORDS: usize = 256;
 
 /// `x` rounded to Q1.15 (saturated, which the twiddle offset makes unnecessary).
 const fn q15(x: f64) -> i16 {
@@ -301,12 +311,30 @@ impl StftPlan {
         // 2^(L+30) / S in [2^30, 2^31] since 2^(L-1) < S <= 2^L; u128 because 2^(L+30) can
         // reach 2^66. The +S/2 rounds to nearest.
         let gain = (((1u128 << (l + 30)) + (sum as u128) / 2) / sum as u128) as u32;
+        let bins = config.n_bins as usize;
+        let by_rows = matches!(config.shape, WindowShape::Rectangular) && bins * n <= ROW_WORDS;
+        let mut rows = [0u32; ROW_WORDS];
+        if by_rows {
+            let mut b = 0;
+            while b < bins {
+                let k = config.first_bin as usize + b;
+                let mut i = 0;
+                while i < n {
+                    let (c, s) = twiddles[(k * i) % n];
+                    rows[b * n + i] = c as u16 as u32 | (s as u16 as u32) << 16;
+                    i += 1;
+                }
+                b += 1;
+            }
+        }
         Ok(StftPlan {
             config,
             twiddles,
             window,
             acc_shift,
             gain,
+            rows,
+            by_rows,
         })
     }
 
@@ -347,6 +375,21 @@ impl StftPlan {
         else {
             return;
         };
+        let bins = usize::from(self.config.n_bins);
+        if self.by_rows {
+            // Rectangular window: x·w = x·2^15 exactly (w = 2^30, and x·2^30 / 2^15 needs no
+            // rounding), so Re = 2^15 · Σ x·cos and the same for Im: the sums of i16 products
+            // (|Σ| < 48 · 2^30 < 2^36, shifted < 2^51), the same i64 numbers as below. Each
+            // bin's row pairs its first n − head twiddles with the older samples, the rest
+            // with the newer ones (`dsp::stft_bin_sums_rows`, SMLALBB/SMLALBT on the M4).
+            let mut sums = [core::mem::MaybeUninit::uninit(); MAX_BANDS];
+            let bins = bins.min(out.len()).min(MAX_BANDS);
+            let sums = crate::dsp::stft_bin_sums_rows(older, newer, &self.rows, &mut sums[..bins]);
+            for (o, &[re, im]) in out.iter_mut().zip(sums.iter()) {
+                *o = self.magnitude(re << 15, im << 15);
+            }
+            return;
+        }
         // Windowed samples, oldest first, Q2.30.
         let mut xw = [0i32; MAX_WINDOW];
         for ((d, &s), &w) in xw
@@ -359,7 +402,6 @@ impl StftPlan {
         }
         let xw = xw.get(..n).unwrap_or(&[]);
 
-        let bins = usize::from(self.config.n_bins);
         for (k, o) in (usize::from(self.config.first_bin)..).zip(out.iter_mut().take(bins)) {
             // Q2.30 × Q1.15 = Q3.45; |sum| <= Σ|x·w| · 2^15 < 2^51, no overflow for any input.
             let mut re: i64 = 0;
@@ -383,11 +425,13 @@ impl StftPlan {
     }
 
     /// sqrt(re² + im²) / Σw in Q1.15, for Q3.45 accumulators.
-    #[inline]
+    #[inline(always)]
     fn magnitude(&self, re: i64, im: i64) -> i16 {
-        // Reduce to |·| <= 2^30 (see `acc_shift`) so the squares sum to < 2^61.
-        let a = round_shift_i64(re, self.acc_shift).unsigned_abs();
-        let b = round_shift_i64(im, self.acc_shift).unsigned_abs();
+        // Reduce to |·| <= 2^30 (see `acc_shift`) so the squares sum to < 2^61. acc_shift is
+        // 16..=21 (L is 31..=36 for N <= 48): the mask changes nothing but tells the compiler
+        // that the 64-bit shift is by less than 32 (a few instructions instead of two paths).
+        let a = round_shift_i64(re, self.acc_shift & 31).unsigned_abs();
+        let b = round_shift_i64(im, self.acc_shift & 31).unsigned_abs();
         let mag = isqrt_u64(a * a + b * b);
         // The reduced magnitude times 2^acc_shift / S is the Q1.15 output, and
         // 2^acc_shift / S = gain / 2^45 because acc_shift = L - 15 and gain = 2^(L+30) / S.
@@ -532,6 +576,7 @@ impl Default for StftState {
 /// 1999) on top of `u32::isqrt` (itself Karatsuba from an 8-bit table), arranged so that its
 /// division is 32-bit (`UDIV` on the M4) rather than a 64-bit library call. Small arguments
 /// take the 32-bit path alone.
+#[inline(always)]
 fn isqrt_u64(n: u64) -> u32 {
     if n <= u64::from(u32::MAX) {
         return crate::dsp::isqrt_u32(n as u32);
@@ -967,6 +1012,37 @@ mod tests {
             let want = if t < 20 { 1638 } else { 0 };
             assert!(out.iter().all(|&o| (o - want).abs() <= 1), "t={t} {out:?}");
         }
+    }
+
+    /// The rectangular window's per-bin twiddle rows give the same bits as the general path
+    /// (which the bound tests check against f64), on every signal and window that has rows.
+    #[test]
+    fn twiddle_rows_equal_the_general_path() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut with_rows = 0;
+        for c in configs() {
+            let fast = StftPlan::new(c).unwrap();
+            if !fast.by_rows {
+                assert!(
+                    c.shape == WindowShape::Hann
+                        || usize::from(c.n_bins) * usize::from(c.window_len) > ROW_WORDS
+                );
+                continue;
+            }
+            with_rows += 1;
+            let mut general = fast.clone();
+            general.by_rows = false;
+            for (name, sig) in signals(&mut rng) {
+                let (mut sa, mut sb) = (StftState::new(), StftState::new());
+                let (mut a, mut b) = ([0i16; MAX_BANDS], [0i16; MAX_BANDS]);
+                for (t, &x) in sig.iter().enumerate() {
+                    fast.step(&mut sa, x, &mut a);
+                    general.step(&mut sb, x, &mut b);
+                    assert_eq!(a, b, "{c:?} {name} t={t}");
+                }
+            }
+        }
+        assert!(with_rows >= 3, "{with_rows}");
     }
 
     #[test]
