@@ -130,6 +130,8 @@ field_loop() { # field_loop DIR NAME SIMULATE-ARGS…
   local d="$work/$1" name="$2"
   shift 2
   mkdir -p "$d/rec"
+  local t0
+  t0="$(date +%s%N)"
   quiet() { "$@" >>"$d/steps.log" 2>&1 || { cat "$d/steps.log" >&2; return 1; }; }
   quiet "$slipguard" simulate "$@" --failure-share 0.5 --out "$d/sim"
   local f id open
@@ -155,6 +157,7 @@ field_loop() { # field_loop DIR NAME SIMULATE-ARGS…
   mv "$work/qemu-frames.bin" "$d/qemu.bin"
   "$replay_field" --scenario "$d/scenario.bin" "$old" >"$d/host.bin"
   compare "field loop $name ($(basename "$old") → the exported blob)" "$d/host.bin" "$d/qemu.bin"
+  echo "qemu-replay: field loop $name: $(( ($(date +%s%N) - t0) / 1000000 )) ms from simulate to the comparison"
 }
 field_loop hand40 "40 Hz hand" --rate 40 --count 4 --seed 7
 field_loop suction71 "71 Hz suction" --sensor suction --count 3 --seed 2
