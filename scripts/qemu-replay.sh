@@ -12,7 +12,17 @@
 # 5. The field script (qemu-app feature `field`): sample stream on, grasp start, lift, release,
 #    an upload of the golden test model into a RAM-backed model slot while the frames go on,
 #    grasp start on it; compared with the host side (`replay_field` example), then C-decoded.
-# Exit status 0 when both comparisons match, 1 on a mismatch, else the failing command's status.
+# 6. The field loop at 40 Hz on the hand profile and at 71 Hz on the suction profile, end to
+#    end: grasps written by `slipguard simulate`, recorded from the firmware's samples stream
+#    (`replay --samples` through `monitor --record`), labelled (`label --outcome-from-drop`),
+#    trained (tiny: LSTM hidden 4, one epoch, as host-tools/tests/rates.rs) and exported
+#    (`slipguard-export export`). A scenario file (the first grasp, repeated, on the profile its
+#    unit implies, and the exported blob; `field_scenario` example of host-tools) goes into the
+#    QEMU build's SCENARIO region, the shipped model for the rate into the MODEL region; the
+#    field script uploads the new blob. The frames equal the host replay's (`replay_field
+#    --scenario`) byte for byte, and the host side checks that the flags after the upload are
+#    the new model's (a run on it from boot) and not the old one's.
+# Exit status 0 when every comparison matches, 1 on a mismatch, else the failing command's status.
 # Works from any directory. Env: QEMU_REPLAY_TIMEOUT (seconds, default 300), KEEP_DIR=1 keeps the files.
 set -euo pipefail
 
@@ -107,3 +117,47 @@ if grep -q '^bad' "$work/qemu-field-c.txt" || [ "$n_samples" != 400 ] || [ "$n_m
   exit 1
 fi
 echo "qemu-replay: C decoder: field script, $n_samples samples frames, $n_marks phase marks"
+
+# 6. The field loop at 40 Hz (hand) and 71 Hz (suction): simulate → record → label → train →
+#    export → upload on QEMU → flags from the new model, equal to the host replay.
+(cd "$root" && cargo build -q -p slipguard-export --bin slipguard-export &&
+  cargo build -q -p slipguard --example field_scenario && cargo build -q -p slipguard-app --example replay_field)
+exporter="${CARGO_TARGET_DIR:-$root/target}/debug/slipguard-export"
+scenario_tool="${CARGO_TARGET_DIR:-$root/target}/debug/examples/field_scenario"
+replay_field="${CARGO_TARGET_DIR:-$root/target}/debug/examples/replay_field"
+arm-none-eabi-objcopy --remove-section .model "$elf" "$work/field-no-model.elf" 2>/dev/null
+field_loop() { # field_loop DIR NAME SIMULATE-ARGS…
+  local d="$work/$1" name="$2"
+  shift 2
+  mkdir -p "$d/rec"
+  local t0
+  t0="$(date +%s%N)"
+  quiet() { "$@" >>"$d/steps.log" 2>&1 || { cat "$d/steps.log" >&2; return 1; }; }
+  quiet "$slipguard" simulate "$@" --failure-share 0.5 --out "$d/sim"
+  local f id open
+  for f in "$d"/sim/*.csv; do
+    id="$(basename "$f" .csv)"
+    open="$(sed -n 's/^# open_start: *//p' "$f" | tr -d ' \r')"
+    quiet "$slipguard" replay "$f" --samples --script marks --release-at "$open" --out "$d/$id.bin"
+    quiet "$slipguard" monitor --capture "$d/$id.bin" --record "$d/rec/$id.csv"
+  done
+  quiet "$slipguard" label "$d/rec" --outcome-from-drop --out "$d/labelled"
+  quiet "$slipguard" train "$d/labelled" --out "$d/model" --variant lstm --hidden 4 --epochs 1 --batch 64 \
+    --name field
+  quiet "$exporter" export "$d/model/field.safetensors" --data "$d/labelled" --no-holdout --no-report --quiet \
+    -o "$d/new.bin"
+  local first old
+  first="$(ls "$d"/sim/*.csv | sort | head -n 1)"
+  old="$(cd "$root" && "$scenario_tool" "$first" "$d/new.bin" "$d/scenario.bin")"
+  case "$old" in /*) ;; *) old="$root/$old" ;; esac
+  qemu "$work/field-no-model.elf" -device "loader,file=$old,addr=0x00300000" \
+    -device "loader,file=$d/scenario.bin,addr=0x21000000" | tee "$d/qemu.log"
+  grep -q "scenario from 0x21000000" "$d/qemu.log" || { echo "qemu-replay: $name: the scenario was not read" >&2; exit 1; }
+  grep -q "new model in slot" "$d/qemu.log" || { echo "qemu-replay: $name: no new model after the upload" >&2; exit 1; }
+  mv "$work/qemu-frames.bin" "$d/qemu.bin"
+  "$replay_field" --scenario "$d/scenario.bin" "$old" >"$d/host.bin"
+  compare "field loop $name ($(basename "$old") → the exported blob)" "$d/host.bin" "$d/qemu.bin"
+  echo "qemu-replay: field loop $name: $(( ($(date +%s%N) - t0) / 1000000 )) ms from simulate to the comparison"
+}
+field_loop hand40 "40 Hz hand" --rate 40 --count 4 --seed 7
+field_loop suction71 "71 Hz suction" --sensor suction --count 3 --seed 2

@@ -392,3 +392,128 @@ pub fn run_field<F: crate::upload::Flash>(
     }
     (sent, reloaded)
 }
+
+/// A field scenario given at run time instead of compiled in (the QEMU build's `field` feature
+/// reads one from memory that QEMU's `-device loader` filled; `replay_field --scenario` reads
+/// the same file): the sensor profile, the trial and the blob the field script uploads.
+///
+/// Layout, little-endian: magic [`MAGIC`], the [`ProfileId`](crate::profile::ProfileId) byte
+/// and three zero bytes, the trial's length in bytes (`u32`), the blob's (`u32`), the trial
+/// (steps × the profile's channels `i32`, as [`Trial`]), the blob. The trial's length is a
+/// multiple of 4, so the blob keeps the scenario's 4-byte alignment (a blob must be aligned).
+pub mod scenario {
+    use super::Trial;
+    use crate::profile::{Profile, ProfileId};
+
+    /// First bytes of a scenario.
+    pub const MAGIC: [u8; 4] = *b"SGSC";
+    /// Bytes before the trial.
+    pub const HEADER: usize = 16;
+
+    /// A parsed scenario, borrowing its bytes.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Scenario<'a> {
+        /// The sensor profile the trial is for.
+        pub profile: Profile,
+        /// The trial, at the model rate.
+        pub trial: Trial<'a>,
+        /// The blob the field script uploads.
+        pub upload: &'a [u8],
+    }
+
+    /// Why bytes are not a scenario.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    #[non_exhaustive]
+    pub enum ScenarioError {
+        /// The bytes do not start with [`MAGIC`] (no scenario loaded).
+        NoMagic,
+        /// The profile byte names no profile.
+        Profile(u8),
+        /// The lengths do not fit the bytes, or the trial is not whole steps.
+        Length,
+    }
+
+    impl core::fmt::Display for ScenarioError {
+        fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+            match self {
+                Self::NoMagic => write!(f, "no scenario (magic SGSC missing)"),
+                Self::Profile(p) => write!(
+                    f,
+                    "scenario profile {p} is neither 0 (hand) nor 1 (suction)"
+                ),
+                Self::Length => write!(
+                    f,
+                    "scenario lengths do not fit: the trial must be whole steps of the profile's channels and both parts inside the bytes"
+                ),
+            }
+        }
+    }
+
+    /// The header for a trial of `trial_len` bytes and a blob of `upload_len` bytes.
+    pub fn header(profile: &Profile, trial_len: usize, upload_len: usize) -> [u8; HEADER] {
+        let mut h = [0u8; HEADER];
+        h[..4].copy_from_slice(&MAGIC);
+        h[4] = profile.id as u8;
+        h[8..12].copy_from_slice(&(trial_len as u32).to_le_bytes());
+        h[12..16].copy_from_slice(&(upload_len as u32).to_le_bytes());
+        h
+    }
+
+    /// Parses a scenario at the start of `bytes` (anything after it is ignored).
+    pub fn parse(bytes: &[u8]) -> Result<Scenario<'_>, ScenarioError> {
+        let h = bytes.get(..HEADER).ok_or(ScenarioError::NoMagic)?;
+        if h[..4] != MAGIC {
+            return Err(ScenarioError::NoMagic);
+        }
+        let profile = match h[4] {
+            p if p == ProfileId::Hand as u8 => Profile::HAND,
+            p if p == ProfileId::Suction as u8 => Profile::SUCTION,
+            p => return Err(ScenarioError::Profile(p)),
+        };
+        let len = |i: usize| u32::from_le_bytes([h[i], h[i + 1], h[i + 2], h[i + 3]]) as usize;
+        let (trial_len, upload_len) = (len(8), len(12));
+        let step = 4 * profile.channels;
+        let trial_end = HEADER.checked_add(trial_len).ok_or(ScenarioError::Length)?;
+        let end = trial_end
+            .checked_add(upload_len)
+            .ok_or(ScenarioError::Length)?;
+        if trial_len == 0 || trial_len % step != 0 || end > bytes.len() {
+            return Err(ScenarioError::Length);
+        }
+        Ok(Scenario {
+            profile,
+            trial: Trial::new(&bytes[HEADER..trial_end], profile.channels),
+            upload: &bytes[trial_end..end],
+        })
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        #[test]
+        fn a_scenario_parses_back_and_bad_ones_say_why() {
+            // Written by hand: suction, 2 steps of 4 channels, a 4-byte blob.
+            let mut b = [0u8; HEADER + 32 + 4 + 3];
+            b[..16].copy_from_slice(&[b'S', b'G', b'S', b'C', 1, 0, 0, 0, 32, 0, 0, 0, 4, 0, 0, 0]);
+            b[16 + 4 * 5..16 + 4 * 6].copy_from_slice(&(-7i32).to_le_bytes());
+            b[48..52].copy_from_slice(&[9, 8, 7, 6]);
+            assert_eq!(header(&Profile::SUCTION, 32, 4), b[..16]);
+            let s = parse(&b).unwrap();
+            assert_eq!(s.profile, Profile::SUCTION);
+            assert_eq!(s.trial.steps(), 2);
+            assert_eq!(s.trial.value(1, 1), -7);
+            assert_eq!(s.upload, &[9, 8, 7, 6]);
+            assert_eq!(parse(&[0u8; 64]).unwrap_err(), ScenarioError::NoMagic);
+            let mut p = b;
+            p[4] = 2;
+            assert_eq!(parse(&p).unwrap_err(), ScenarioError::Profile(2));
+            // As hand: 32 bytes are not whole 16-channel steps.
+            let mut h = b;
+            h[4] = 0;
+            assert_eq!(parse(&h).unwrap_err(), ScenarioError::Length);
+            // The blob runs past the end.
+            assert_eq!(parse(&b[..50]).unwrap_err(), ScenarioError::Length);
+        }
+    }
+}

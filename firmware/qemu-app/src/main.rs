@@ -11,7 +11,10 @@
 //!
 //! With the `field` feature the command script is `slipguard_app::replay::field_script` (sample
 //! stream, phase commands, an upload of a second model into a RAM-backed flash slot), compared
-//! with `replay_field`, the host side.
+//! with `replay_field`, the host side. The profile, the trial and the uploaded blob then come
+//! from a scenario (`slipguard_app::replay::scenario`) that QEMU loads into the SCENARIO region
+//! (`memory.x`) when there is one, else the compiled-in Cheez trial and golden test model on
+//! the hand profile.
 //!
 //! Stdout (semihosting) gets a text log and the instruction counts per frame; exit status 0 when
 //! the run completed, 101 on a panic (`slipguard_support::semihosting`).
@@ -31,6 +34,7 @@ use slipguard_app::app::App;
 use slipguard_app::decimate::RATIO;
 use slipguard_app::frontend::{FrameInput, Frontend};
 use slipguard_app::profile::Profile;
+use slipguard_app::replay::scenario::Scenario;
 use slipguard_app::replay::{self, CHEEZ_TRIAL, EmulatedSensor};
 use slipguard_app::schedule::Deadline;
 use slipguard_app::upload::{self, SimFlash, Uploader};
@@ -40,7 +44,7 @@ use slipguard_support::boot::ModelLine;
 use slipguard_support::semihosting::exit;
 use static_cell::{ConstStaticCell, StaticCell};
 
-/// The sensor profile of this build.
+/// The sensor profile of the compiled-in scenario.
 const PROFILE: Profile = Profile::HAND;
 
 // The MODEL region (default blob in the `.model` section, replaceable at load time).
@@ -73,12 +77,64 @@ static SECOND: Aligned<[u8; SECOND_LEN]> =
 #[cfg(feature = "field")]
 const SECOND_LEN: usize = include_bytes!("../../core/tests/fixtures/bench/model.bin").len();
 
-/// The command bytes scheduled before frame `index`.
-fn script_bytes(index: u32, out: &mut heapless::Vec<u8, 2048>) {
+/// The compiled-in scenario: the Cheez trial on the hand profile (with `field`, uploading the
+/// golden test model).
+const COMPILED_IN: Scenario<'static> = Scenario {
+    profile: PROFILE,
+    trial: CHEEZ_TRIAL,
     #[cfg(feature = "field")]
-    replay::field_script::commands(index, &SECOND.0, |b| {
+    upload: &SECOND.0,
+    #[cfg(not(feature = "field"))]
+    upload: &[],
+};
+
+#[cfg(feature = "field")]
+unsafe extern "C" {
+    static __sscenario: u8;
+    static __escenario: u8;
+}
+
+/// The run's scenario: with `field`, the one loaded into the SCENARIO region if its magic is
+/// there (a bad one stops the run with exit status 2), else the compiled-in one.
+fn scenario() -> Scenario<'static> {
+    #[cfg(feature = "field")]
+    {
+        let start = &raw const __sscenario;
+        let end = &raw const __escenario;
+        let len = (end as usize).saturating_sub(start as usize);
+        // SAFETY: `memory.x` defines both symbols as the bounds of the SCENARIO region, RAM
+        // that nothing is linked into and nothing writes during the run (QEMU's loader fills
+        // it before the CPU starts), readable for the whole run.
+        let region = unsafe { core::slice::from_raw_parts(start, len) };
+        match replay::scenario::parse(region) {
+            Ok(s) => {
+                hprintln!(
+                    "slipguard-qemu-app: scenario from 0x{:08x}: {} profile, {} steps, {}-byte blob to upload",
+                    start as usize,
+                    s.profile.name,
+                    s.trial.steps(),
+                    s.upload.len()
+                );
+                return s;
+            }
+            Err(replay::scenario::ScenarioError::NoMagic) => {}
+            Err(e) => {
+                hprintln!("slipguard-qemu-app: {}", e);
+                exit(2)
+            }
+        }
+    }
+    COMPILED_IN
+}
+
+/// The command bytes scheduled before frame `index` (`upload`: the blob the field script sends).
+fn script_bytes(index: u32, upload: &[u8], out: &mut heapless::Vec<u8, 2048>) {
+    #[cfg(feature = "field")]
+    replay::field_script::commands(index, upload, |b| {
         let _ = out.extend_from_slice(b);
     });
+    #[cfg(not(feature = "field"))]
+    let _ = upload;
     #[cfg(not(feature = "field"))]
     for item in replay::cheez_script::SCRIPT
         .iter()
@@ -123,21 +179,22 @@ impl HostFile {
 /// into the same front end the firmware's ADC task runs; the command script's bytes arrive just
 /// before the frame they are scheduled for.
 #[embassy_executor::task]
-async fn adc_task() {
-    let mut frontend = Frontend::new(PROFILE);
+async fn adc_task(run: Scenario<'static>) {
+    let profile = run.profile;
+    let mut frontend = Frontend::new(profile);
     #[cfg(not(feature = "field"))]
-    let mut sensor = EmulatedSensor::with_open_wires(PROFILE, replay::cheez_script::OPEN_WIRES);
+    let mut sensor = EmulatedSensor::with_open_wires(profile, replay::cheez_script::OPEN_WIRES);
     #[cfg(feature = "field")]
-    let mut sensor = EmulatedSensor::new(PROFILE);
+    let mut sensor = EmulatedSensor::new(profile);
     let mut scan = [0u16; 16];
-    for step in 0..CHEEZ_TRIAL.steps() {
+    for step in 0..run.trial.steps() {
         for _ in 0..RATIO {
-            sensor.scan(&CHEEZ_TRIAL, step, &mut scan);
+            sensor.scan(&run.trial, step, &mut scan);
             let Some(input) = frontend.push_scan(&scan) else {
                 continue;
             };
             let mut bytes = heapless::Vec::new();
-            script_bytes(input.index, &mut bytes);
+            script_bytes(input.index, run.upload, &mut bytes);
             for chunk in bytes.chunks(32) {
                 let v = heapless::Vec::from_slice(chunk).unwrap_or_default();
                 EVENTS.send(Event::Rx(v)).await;
@@ -177,6 +234,8 @@ impl Stats {
 async fn main(spawner: Spawner) {
     let cp = cortex_m::Peripherals::take().expect("core peripherals taken twice");
     time_driver::init(cp.SYST);
+    let run = scenario();
+    let profile = run.profile;
     // RAM-backed model slots: the image's model in the factory slot, the other one erased.
     let slot0 = SLOT0.init([u32::MAX; 128 * 1024 / 4]);
     let slot1 = SLOT1.init([u32::MAX; 128 * 1024 / 4]);
@@ -184,13 +243,13 @@ async fn main(spawner: Spawner) {
         *w = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
     }
     let mut flash = SimFlash::new(slot0, slot1);
-    let mut uploader = Uploader::new(upload::select(&flash, &PROFILE));
+    let mut uploader = Uploader::new(upload::select(&flash, &profile));
     // As on the board (the factory slot's blob): the blob validated and copied to RAM, or run in place if it is bad.
     let (model_bytes, copied) = upload::load(MODEL_RAM.take(), model_region());
     if let Err(e) = copied {
         hprintln!("slipguard-qemu-app: model stays in flash: {}", e);
     }
-    let app = APP.init_with(|| App::new(PROFILE, model_bytes));
+    let app = APP.init_with(|| App::new(profile, model_bytes));
     #[cfg(feature = "all-contact")]
     {
         // |x| ≥ 0 always holds: every channel is in contact from frame 0 and never leaves.
@@ -218,7 +277,7 @@ async fn main(spawner: Spawner) {
         hprintln!("cannot create qemu-frames.bin on the host");
         exit(2)
     };
-    spawner.spawn(adc_task().expect("adc task spawned twice"));
+    spawner.spawn(adc_task(run).expect("adc task spawned twice"));
 
     let deadline = Deadline::for_rate_mhz(app.rate_mhz());
     let mut deframer = Deframer::new();
@@ -243,8 +302,8 @@ async fn main(spawner: Spawner) {
                     // copy of what was sent, as `replay::run_field` does.
                     #[cfg(feature = "field")]
                     {
-                        let same = upload::blob(&flash, Some(a)) == &SECOND.0[..];
-                        app.reload_in_place(if same { &SECOND.0 } else { &[] });
+                        let same = upload::blob(&flash, Some(a)) == run.upload;
+                        app.reload_in_place(if same { run.upload } else { &[] });
                     }
                 }
             }
@@ -291,7 +350,7 @@ async fn main(spawner: Spawner) {
     if let Some(mean) = stats.sum.checked_div(stats.n) {
         hprintln!(
             "insns per {}-channel frame (App::infer): mean {} min {} max {} over {} frames (±40)",
-            PROFILE.channels,
+            profile.channels,
             mean,
             stats.min,
             stats.max,
