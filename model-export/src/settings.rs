@@ -361,6 +361,7 @@ impl Settings {
             threshold_q15: Q15::from_f64(threshold).header_threshold(),
             raise_after,
             clear_after,
+            hand_rule: None,
         };
         let dual_order = match self.get("dual_order").map(str::trim) {
             None | Some("") => None,
