@@ -260,6 +260,14 @@ pub mod keys {
     pub const NORM_MEAN: &str = "norm_mean";
     /// JSON array of the feature standard deviations.
     pub const NORM_STD: &str = "norm_std";
+    /// The hand rule's strict fraction of the recent peak (0…1; 0 = the rule never flags
+    /// alone): with [`HAND_RULE_GUARD`] and [`HAND_RULE_WINDOW_S`] the blob's hand rule
+    /// ([`super::ModelConfig::hand_rule`], format v2). Absent: no rule (format v1).
+    pub const HAND_RULE_FRACTION: &str = "hand_rule_fraction";
+    /// The hand rule's guard fraction (0…1; 1 = no guard: every model flag counts).
+    pub const HAND_RULE_GUARD: &str = "hand_rule_guard";
+    /// The hand rule's peak window, seconds (1 to 64 frames at the model's rate).
+    pub const HAND_RULE_WINDOW_S: &str = "hand_rule_window_s";
 }
 
 /// Flag bits of header byte 17.

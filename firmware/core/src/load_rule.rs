@@ -109,6 +109,11 @@ impl FusedHand {
     /// `guard_q15` that lets every model flag through.
     pub const NO_GUARD: i16 = i16::MAX;
 
+    /// A fraction in Q0.15 as a real (+1.0 = 32 768).
+    fn real(q15: i16) -> f64 {
+        q15 as f64 / 32_768.0
+    }
+
     /// Feeds one frame: the model's hand flag and the hand load ([`LoadRule::hand_load`]) →
     /// the fused hand flag. One peak serves both fractions.
     pub fn update(&self, s: &mut LoadRuleState, model_flag: bool, load: i32) -> bool {
@@ -120,6 +125,24 @@ impl FusedHand {
             }
             .below_peak(s);
         strict || (model_flag && guard)
+    }
+}
+
+impl core::fmt::Display for FusedHand {
+    /// "rule < 0.40·peak OR (model flag AND load < 0.80·peak), peak over 10 frames" (the guard
+    /// reads "any load" for [`FusedHand::NO_GUARD`]).
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "rule < {:.2}·peak OR (model flag AND ",
+            Self::real(self.strict.fraction_q15)
+        )?;
+        if self.guard_q15 == Self::NO_GUARD {
+            f.write_str("any load")?;
+        } else {
+            write!(f, "load < {:.2}·peak", Self::real(self.guard_q15))?;
+        }
+        write!(f, "), peak over {} frames", self.strict.window)
     }
 }
 
@@ -205,5 +228,13 @@ mod tests {
         };
         let mut s = LoadRuleState::new();
         assert!(open.update(&mut s, true, 1000));
+        assert_eq!(
+            f.to_string(),
+            "rule < 0.40·peak OR (model flag AND load < 0.80·peak), peak over 4 frames"
+        );
+        assert_eq!(
+            open.to_string(),
+            "rule < 0.40·peak OR (model flag AND any load), peak over 4 frames"
+        );
     }
 }
