@@ -686,7 +686,8 @@ fn fused_note(name: &str, f: &slipguard_core::decision::FusedHand) -> String {
     format!(
         "{name}: hand (fused) = the hand flag as the firmware computes it from this blob, its \
          hand decision fused with the blob's hand rule (format v2): {f}. The rule's parameters \
-         are the blob's, fixed before these trials were scored (not picked on them here)."
+         are the blob's (set at export; eval picks nothing): chosen on these trials, they make \
+         this row in-sample for them."
     )
 }
 
