@@ -91,7 +91,7 @@ fn load_member(p: &Path, allow_bad: bool) -> anyhow::Result<(Checkpoint, Option<
             p.display()
         );
     }
-    let ck = checkpoint::read(&ck_path)?;
+    let mut ck = checkpoint::read(&ck_path)?;
     let bin = ck_path.with_extension("bin");
     let blob = if bin.exists() {
         let b = std::fs::read(&bin).with_context(|| format!("reading {}", bin.display()))?;
@@ -103,7 +103,12 @@ fn load_member(p: &Path, allow_bad: bool) -> anyhow::Result<(Checkpoint, Option<
             &profile,
             slipguard_core::blob::AlignedBlob::new(&b).as_bytes(),
         ) {
-            Ok(_) => Some(b),
+            Ok(c) => {
+                // The blob's hand rule (format v2, set at export): kept when the checkpoint is
+                // quantized afresh with another decision rule (`--threshold` …).
+                ck.model.config.hand_rule = c.hand_rule;
+                Some(b)
+            }
             Err(why) if allow_bad => {
                 eprintln!(
                     "eval: warning: {}: {why}; evaluating the checkpoint quantized afresh \
