@@ -373,7 +373,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "   hand (fused): this blob carries a hand rule (format v2), so its hand flag is the \
              model's hand decision fused with the hand-load rule, as the firmware computes it: \
              {r}. The `load rule` row is the rule alone (fraction and window picked leave one \
-             trial out); nothing learned beats it on these trials (docs/results.md)."
+             trial out). These rows are in-sample for the model; held out, the model alone does \
+             not beat the rule and the fused flag matches the rule's detections and false alarms \
+             with a longer median lead (docs/results.md)."
         );
     }
     println!(
