@@ -82,8 +82,9 @@ fn batched_sequences_equal_single_sequences_and_any_thread_count() {
     assert_eq!(two, single);
 }
 
-/// The shipped blob with a hand rule: the same tensors written as format v2.
-fn with_rule(bytes: &[u8], rule: slipguard_core::decision::FusedHand) -> Vec<u8> {
+/// The shipped blob with another hand rule: the same tensors written as format v2 with `rule`,
+/// or as format v1 without one.
+fn with_rule(bytes: &[u8], rule: Option<slipguard_core::decision::FusedHand>) -> Vec<u8> {
     use slipguard_core::blob::{BlobTensors, write_blob};
     let aligned = AlignedBlob::new(bytes);
     let b = aligned.parse().unwrap();
@@ -97,7 +98,7 @@ fn with_rule(bytes: &[u8], rule: slipguard_core::decision::FusedHand) -> Vec<u8>
         dense: (b.dense.weights.to_vec(), b.dense.rows.to_vec()),
     };
     let mut config = b.config;
-    config.hand_rule = Some(rule);
+    config.hand_rule = rule;
     write_blob(&config, &tensors)
 }
 
@@ -116,13 +117,15 @@ fn a_v2_blobs_runs_fuse_the_hand_flag_with_its_rule() {
         },
         guard_q15: 26_214, // 0.8
     };
-    let v2 = AlignedBlob::new(&with_rule(&bytes, rule));
-    let v1 = AlignedBlob::new(&bytes);
+    // The shipped blob carries a rule (format v2); v1 is its model without one.
+    let v2 = AlignedBlob::new(&with_rule(&bytes, Some(rule)));
+    let v1 = AlignedBlob::new(&with_rule(&bytes, None));
     let (m1, m2) = (
         Model::from_bytes(v1.as_bytes()).unwrap(),
         Model::from_bytes(v2.as_bytes()).unwrap(),
     );
     assert_eq!(m2.config().hand_rule, Some(rule));
+    assert_eq!(m1.config().hand_rule, None);
     let contact = ContactConfig::of(m1.config());
     let hand = HandConfig::of(m1.config());
     let full_scale = m1.config().input_full_scale as f64;
