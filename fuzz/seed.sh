@@ -9,8 +9,9 @@ root=..
 c=corpus
 mkdir -p "$c"/{blob,protocol,app,upload,recording,eagle,import_safetensors,import_onnx,import_keras}
 
-# Blobs: the golden v1 blob (hex), the bench blob, the shipped models.
+# Blobs: the golden v1 and v2 blobs (hex), the bench blob, the shipped models.
 xxd -r -p "$root/firmware/core/tests/fixtures/golden_blob_v1.hex" > "$c/blob/golden_v1.bin"
+xxd -r -p "$root/firmware/core/tests/fixtures/golden_blob_v2.hex" > "$c/blob/golden_v2.bin"
 cp "$root/firmware/core/tests/fixtures/bench/model.bin" "$c/blob/bench.bin"
 for b in "$root"/models/*/*.bin; do cp "$b" "$c/blob/$(basename "$b")"; done
 

@@ -69,6 +69,7 @@ extern "C" {
 #define SG_ST_LATE 0x02u /* This frame finished after its deadline (it is still sent; the overrun counter counts it). */
 #define SG_ST_TARED 0x04u /* The tare of the suction profile is in force. */
 #define SG_ST_HAND_UNSTABLE 0x08u /* The hand flag: the hand-level decision over the channels in contact (`decision::HandConfig`) is up. Always 0 while not armed. The board's UNSTABLE line carries the same bit. */
+#define SG_ST_HAND_BY_RULE 0x10u /* The hand flag is up while the model's own hand flag is down: the model blob's hand rule (format v2, `decision::FusedHand`) raised it. Always 0 without a rule in the blob and while not armed; set only with HAND_UNSTABLE. */
 
 /* Phase marks of a samples frame: the commands handled since the previous frame. */
 #define SG_MARK_GRASP_START 0x01u /* Grasp start (`grasp_start` of a recording). */
@@ -235,6 +236,12 @@ static inline int sg_flags_hand_unstable(const sg_flags *f) {
     return (f->status & SG_ST_HAND_UNSTABLE) != 0;
 }
 
+/* Whether the hand flag of a flag frame is up by the model blob's hand rule alone (format v2):
+ * the model's own hand flag is down. 0 without a rule in the blob. */
+static inline int sg_flags_hand_by_rule(const sg_flags *f) {
+    return (f->status & SG_ST_HAND_BY_RULE) != 0;
+}
+
 /* Contact mask of a flag frame: bit c set while channel c is in contact, i.e. predicted on. The
  * device sends SG_P_NONE exactly for the channels faulted (fault bit set) or out of contact. */
 static inline uint16_t sg_flags_contact(const sg_flags *f) {
@@ -273,7 +280,7 @@ static inline uint32_t sg_u32(const uint8_t *b) {
  * and body lengths. Replies: SG_REPLY_* for the head every reply has, then SG_R_<COMMAND>_*
  * offsets counted from the end of that head. */
 #define SG_FLAGS_AT_TIMESTAMP_US 0u /* U32: time of the frame's last sample in µs since the first ADC scan, from the sample clock */
-#define SG_FLAGS_AT_STATUS 4u /* U8: bit 0 ARMED, bit 1 LATE, bit 2 TARED, bit 3 HAND_UNSTABLE; others 0 */
+#define SG_FLAGS_AT_STATUS 4u /* U8: bit 0 ARMED, bit 1 LATE, bit 2 TARED, bit 3 HAND_UNSTABLE, bit 4 HAND_BY_RULE; others 0 */
 #define SG_FLAGS_AT_CHANNELS 5u /* U8: N, channels (16 hand, 4 suction), 1…16 */
 #define SG_FLAGS_AT_UNSTABLE 6u /* U16: bit c: channel c unstable; bits ≥ N are 0 */
 #define SG_FLAGS_AT_FAULT 8u /* U16: bit c: channel c faulted, not predicted on */

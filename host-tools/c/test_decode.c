@@ -18,7 +18,8 @@ static void print_frame(const sg_frame *f) {
                (unsigned long)x->timestamp_us, x->status, x->channels, x->unstable, x->fault,
                x->overruns, x->skipped);
         for (c = 0; c < x->channels; c++) printf(c ? ",%u" : "%u", x->p[c]);
-        printf(" hand=%d contact=%u\n", sg_flags_hand_unstable(x), sg_flags_contact(x));
+        printf(" hand=%d rule=%d contact=%u\n", sg_flags_hand_unstable(x), sg_flags_hand_by_rule(x),
+               sg_flags_contact(x));
         break;
     }
     case SG_T_SAMPLES: {

@@ -291,7 +291,7 @@ impl Monitor {
             Some(f) => {
                 let _ = writeln!(
                     s,
-                    "t = {:.3} s  {}{}{}  overruns {}  skipped {}",
+                    "t = {:.3} s  {}{}{}{}  overruns {}  skipped {}",
                     f.timestamp_us as f64 / 1e6,
                     if f.status & status::ARMED != 0 {
                         "ARMED"
@@ -307,6 +307,13 @@ impl Monitor {
                         " TARED"
                     } else {
                         ""
+                    },
+                    // The hand flag, and whether the blob's hand rule alone raised it (format
+                    // v2; the model's own hand flag down).
+                    match (f.hand_unstable(), f.hand_by_rule()) {
+                        (true, true) => "  HAND UNSTABLE (HAND_BY_RULE)",
+                        (true, false) => "  HAND UNSTABLE",
+                        _ => "",
                     },
                     f.overruns,
                     f.skipped

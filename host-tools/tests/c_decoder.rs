@@ -70,7 +70,7 @@ fn line(f: &Frame) -> String {
                 .map(|p| p.to_string())
                 .collect();
             format!(
-                "flags seq={s} t={} st={} n={} unst={} fault={} ovr={} skip={} p={} hand={} contact={}",
+                "flags seq={s} t={} st={} n={} unst={} fault={} ovr={} skip={} p={} hand={} rule={} contact={}",
                 x.timestamp_us,
                 x.status,
                 x.channels,
@@ -80,6 +80,7 @@ fn line(f: &Frame) -> String {
                 x.skipped,
                 p.join(","),
                 x.hand_unstable() as u8,
+                x.hand_by_rule() as u8,
                 x.contact()
             )
         }
@@ -231,7 +232,7 @@ fn golden_frames_field_by_field() {
     let stream: Vec<u8> = GOLDEN.iter().flat_map(|h| hex(h)).collect();
     let c = run_c(&[], &stream);
     // Independent expectations, from docs/protocol.md's field tables.
-    let want = "flags seq=4660 t=1000000 st=1 n=4 unst=2 fault=4 ovr=1 skip=0 p=120,32767,65535,16384 hand=0 contact=11\n\
+    let want = "flags seq=4660 t=1000000 st=1 n=4 unst=2 fault=4 ovr=1 skip=0 p=120,32767,65535,16384 hand=0 rule=0 contact=11\n\
                 ping seq=7 token=3735928559\n\
                 set_threshold seq=8 thr=19661 raise=2 clear=3\n\
                 grasp_start seq=9\n\
@@ -244,7 +245,7 @@ fn golden_frames_field_by_field() {
                 upload_chunk seq=13 offset=128 len=8 crc=609777607\n\
                 upload_commit seq=14\n\
                 reply seq=5 type=152 rseq=13 status=1 code=4 detail=0 slot=0 value=256\n\
-                flags seq=66 t=2000000 st=9 n=4 unst=1 fault=8 ovr=0 skip=2 p=21000,4000,65535,65535 hand=1 contact=3\n";
+                flags seq=66 t=2000000 st=9 n=4 unst=1 fault=8 ovr=0 skip=2 p=21000,4000,65535,65535 hand=1 rule=0 contact=3\n";
     assert_eq!(c, want);
     assert_eq!(rust_lines(&stream), want);
     // Encoding commands and the CRC check value.

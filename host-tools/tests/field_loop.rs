@@ -152,11 +152,18 @@ fn replay_takes_a_folder_of_recordings_and_a_single_one() {
     let files = record_folder(&rec);
     let out = dir.join("frames");
     let text = run_ok(slipguard().arg("replay").arg(&rec).arg("--out").arg(&out));
+    // One line per recording run ("replay: ID (… steps …) with MODEL: N frames …"), and, as the
+    // shipped blob carries a hand rule (format v2), one line per run with the fused flag's counts.
     let runs = text
         .lines()
-        .filter(|l| l.starts_with("replay: ") && !l.starts_with("replay: note:"))
+        .filter(|l| l.starts_with("replay: ") && l.contains(" frames ("))
         .count();
     assert_eq!(runs, 4, "{text}");
+    let fused = text
+        .lines()
+        .filter(|l| l.starts_with("replay: hand flag fused with the blob's hand rule"))
+        .count();
+    assert_eq!(fused, 4, "{text}");
     for id in TRIALS {
         let b = std::fs::read(out.join(format!("{id}.bin"))).unwrap();
         let frames = replay::decode_stream(&b);

@@ -187,6 +187,7 @@ fn golden_flag_frame_field_by_field() {
     let view = m.view();
     assert!(view.contains("c1  UNSTABLE p=1.000"), "{view}");
     assert!(view.contains("c2  FAULT"), "{view}");
+    assert!(!view.contains("HAND"), "{view}");
     // The same frame with a bit flipped is a corrupt run, not a frame.
     let good = hex(GOLDEN_FLAGS);
     assert_eq!(cobs(&uncobs(&good[..good.len() - 1])), good);
@@ -257,4 +258,45 @@ fn monitor_binary_reads_a_pseudo_terminal() {
     assert_eq!(t.rate_hz, 16.7);
     drop(slave);
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The live view names the hand flag, and says when the blob's hand rule alone raised it
+/// (status bit 4, HAND_BY_RULE; docs/protocol.md).
+#[test]
+fn the_view_shows_the_hand_flag_and_hand_by_rule() {
+    let view = |st: u8| {
+        let mut flags = Flags {
+            timestamp_us: 59_880,
+            status: st,
+            channels: 2,
+            unstable: 0,
+            fault: 0,
+            overruns: 0,
+            skipped: 0,
+            p: [P_NONE; 16],
+        };
+        flags.p[0] = 100;
+        let mut b = [0u8; MAX_WIRE];
+        let n = protocol::encode(
+            &Frame {
+                seq: 1,
+                msg: Message::Flags(flags),
+            },
+            &mut b,
+        );
+        let mut m = Monitor::new();
+        m.push(&b[..n], |_| {});
+        m.view()
+    };
+    let by_model = view(status::ARMED | status::HAND_UNSTABLE);
+    assert!(
+        by_model.contains("ARMED  HAND UNSTABLE  overruns"),
+        "{by_model}"
+    );
+    let by_rule = view(status::ARMED | status::HAND_UNSTABLE | status::HAND_BY_RULE);
+    assert!(
+        by_rule.contains("ARMED  HAND UNSTABLE (HAND_BY_RULE)  overruns"),
+        "{by_rule}"
+    );
+    assert!(!view(status::ARMED).contains("HAND"));
 }

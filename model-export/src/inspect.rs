@@ -65,7 +65,17 @@ pub fn inspect(path: &std::path::Path, bytes: &[u8]) -> Result<BlobInfo> {
 pub fn describe_blob(blob: &ModelBlob<'_>) -> BlobInfo {
     let c = blob.config;
     let mut header = describe(&c);
-    header.insert("format_version".into(), "1".into());
+    let version = if c.hand_rule.is_some() { "2" } else { "1" };
+    header.insert("format_version".into(), version.into());
+    if let Some(r) = &c.hand_rule {
+        header.insert(
+            "hand_rule".into(),
+            format!(
+                "{} (strict_q15 {}, guard_q15 {}, {} frames)",
+                r, r.strict.fraction_q15, r.guard_q15, r.strict.window
+            ),
+        );
+    }
     header.insert("input_unit".into(), c.input_unit.to_string());
     header.insert("threshold_q15".into(), c.threshold_q15.to_string());
     header.insert("features".into(), c.feature_count().to_string());
@@ -145,7 +155,11 @@ pub fn describe_blob(blob: &ModelBlob<'_>) -> BlobInfo {
 
 impl std::fmt::Display for BlobInfo {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "slipguard model blob, format v1")?;
+        let v = self
+            .header
+            .get("format_version")
+            .map_or("1", String::as_str);
+        writeln!(f, "slipguard model blob, format v{v}")?;
         writeln!(f, "header:")?;
         for (k, v) in &self.header {
             writeln!(f, "  {k:<18} {v}")?;

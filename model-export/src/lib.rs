@@ -1,7 +1,7 @@
 //! # slipguard-export
 //!
 //! Turns trained float LSTM weights (PyTorch/safetensors, ONNX, Keras 3) into the firmware's
-//! quantized model blob (format v1, `docs/model-format.md`), with calibration on recorded data,
+//! quantized model blob (format v1, or v2 with a hand rule; `docs/model-format.md`), with calibration on recorded data,
 //! a report of what quantization cost, `inspect`/`verify` for existing blobs, and `upload` of a
 //! blob to the board over its serial link.
 //! See `docs/export.md`.

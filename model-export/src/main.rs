@@ -36,7 +36,7 @@ Exit codes: 0 ok, 2 usage, 3 I/O, 4 unreadable/truncated file, 5 missing or misn
 10 bad setting, 11 data, 12 invalid blob, 13 verification failed.";
 
 #[derive(Parser)]
-#[command(name = "slipguard-export", version, about = "Trained float LSTM → slipguard's quantized model blob (format v1)", after_help = EXAMPLES)]
+#[command(name = "slipguard-export", version, about = "Trained float LSTM → slipguard's quantized model blob (format v1, v2 with a hand rule)", after_help = EXAMPLES)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -221,6 +221,12 @@ struct ModelArgs {
     /// as our trainer's, a bare .weights.h5, an ONNX graph without the Concat).
     #[arg(long)]
     dual_order: Option<String>,
+    /// Put a hand rule into the blob (format v2), fused with the model's hand flag in the
+    /// firmware: FRACTION,GUARD,WINDOW_S = the rule alone flags under FRACTION of the hand
+    /// load's peak over WINDOW_S seconds (0 = never), the model's flag counts under GUARD of it
+    /// (1 = no guard); e.g. 0.4,0.8,0.6. Overrides the hand_rule_* metadata keys.
+    #[arg(long, allow_negative_numbers = true)]
+    hand_rule: Option<String>,
 }
 
 impl ModelArgs {
@@ -244,6 +250,7 @@ impl ModelArgs {
             ("norm_mean", &self.norm_mean),
             ("norm_std", &self.norm_std),
             ("dual_order", &self.dual_order),
+            (slipguard_export::settings::HAND_RULE, &self.hand_rule),
         ];
         ModelSource {
             path,

@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 
 use slipguard_core::blob::keys;
 use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
-use slipguard_core::decision::Q15;
+use slipguard_core::decision::{FusedHand, LOAD_WINDOW_MAX, LoadRule, Q15};
 use slipguard_core::features::stft::{StftConfig, WindowShape};
 
 use crate::error::{ExportError, Result};
@@ -97,7 +97,30 @@ pub const KEYS: &[(&str, &str, &str)] = &[
         "",
         "variant d: order of the hidden states the dense layer sees, force,bands or bands,force (needed when the file does not say)",
     ),
+    (
+        keys::HAND_RULE_FRACTION,
+        "",
+        "hand rule fused with the hand flag (blob format v2; all three hand_rule_* keys or none): the rule alone flags under this fraction of the hand load's recent peak, 0..=1 (0 = never)",
+    ),
+    (
+        keys::HAND_RULE_GUARD,
+        "",
+        "hand rule: the model's hand flag counts while the load is under this fraction of the peak, 0..=1 (1 = no guard)",
+    ),
+    (
+        keys::HAND_RULE_WINDOW_S,
+        "",
+        "hand rule: seconds the peak looks back over (1 to 64 frames at the model's rate)",
+    ),
+    (
+        HAND_RULE,
+        "",
+        "FRACTION,GUARD,WINDOW_S: the three hand_rule_* keys at once (overrides them; --hand-rule)",
+    ),
 ];
+
+/// The three hand-rule keys at once, `FRACTION,GUARD,WINDOW_S` (the `--hand-rule` option).
+pub const HAND_RULE: &str = "hand_rule";
 
 /// Provenance keys `slipguard train` writes into its checkpoints' metadata (docs/checkpoint.md):
 /// not settings of the blob, so the exporter knows and skips them without a warning.
@@ -237,6 +260,77 @@ impl Settings {
         Ok(Some(out))
     }
 
+    /// The hand rule of the `hand_rule_*` keys (or of [`HAND_RULE`], which overrides them) at
+    /// `rate_mhz`: `None` when none is given; a missing key, a fraction outside 0..=1 or a
+    /// window outside 1..=64 frames is refused, naming the key.
+    fn hand_rule(&self, rate_mhz: u32) -> Result<Option<FusedHand>> {
+        let keys3 = [
+            keys::HAND_RULE_FRACTION,
+            keys::HAND_RULE_GUARD,
+            keys::HAND_RULE_WINDOW_S,
+        ];
+        let values: [Option<String>; 3] = match self.get(HAND_RULE).map(str::trim) {
+            Some(v) if !v.is_empty() => {
+                let parts: Vec<&str> = v.split(',').map(str::trim).collect();
+                let [f, g, w] = parts[..] else {
+                    return Err(ExportError::settings(
+                        HAND_RULE,
+                        format!("`{v}` is not FRACTION,GUARD,WINDOW_S (e.g. 0.4,0.8,0.6)"),
+                    ));
+                };
+                [Some(f.into()), Some(g.into()), Some(w.into())]
+            }
+            _ => keys3.map(|k| {
+                self.get(k)
+                    .map(str::to_string)
+                    .filter(|v| !v.trim().is_empty())
+            }),
+        };
+        if values.iter().all(Option::is_none) {
+            return Ok(None);
+        }
+        let mut x = [0f64; 3];
+        for ((&k, v), x) in keys3.iter().zip(&values).zip(&mut x) {
+            let v = v.as_deref().ok_or_else(|| {
+                ExportError::settings(k, "missing (a hand rule needs all three hand_rule_* keys)")
+            })?;
+            *x = v
+                .trim()
+                .parse()
+                .map_err(|_| ExportError::settings(k, format!("cannot parse `{v}`")))?;
+        }
+        let [fraction, guard, window_s] = x;
+        for (k, f) in [(keys3[0], fraction), (keys3[1], guard)] {
+            if !(0.0..=1.0).contains(&f) {
+                return Err(ExportError::settings(k, format!("{f} is not in 0..=1")));
+            }
+        }
+        let frames = (window_s * rate_mhz as f64 / 1000.0).round();
+        if !(1.0..=LOAD_WINDOW_MAX as f64).contains(&frames) {
+            return Err(ExportError::settings(
+                keys3[2],
+                format!(
+                    "{window_s} s is {frames} frames at {} Hz; the rule looks back 1 to {LOAD_WINDOW_MAX} frames",
+                    rate_mhz as f64 / 1000.0
+                ),
+            ));
+        }
+        let rule = FusedHand {
+            strict: LoadRule {
+                fraction_q15: Q15::from_f64(fraction).0,
+                window: frames as u8,
+            },
+            guard_q15: if guard >= 1.0 {
+                FusedHand::NO_GUARD
+            } else {
+                Q15::from_f64(guard).0
+            },
+        };
+        slipguard_core::blob::hand_rule_record(&rule)
+            .map_err(|e| ExportError::settings(HAND_RULE, e.to_string()))?;
+        Ok(Some(rule))
+    }
+
     /// Parses and checks every setting.
     pub fn resolve(&self) -> Result<Resolved> {
         if let Some(f) = self.get(keys::FORMAT)
@@ -346,12 +440,14 @@ impl Settings {
             }
             _ => None,
         };
+        let sample_rate_mhz = (rate * 1000.0).round() as u32;
+        let hand_rule = self.hand_rule(sample_rate_mhz)?;
         let config = ModelConfig {
             model_id: model_id.unwrap_or(0),
             name,
             variant,
             force_diff,
-            sample_rate_mhz: (rate * 1000.0).round() as u32,
+            sample_rate_mhz,
             input_unit,
             input_offset,
             input_full_scale,
@@ -361,6 +457,7 @@ impl Settings {
             threshold_q15: Q15::from_f64(threshold).header_threshold(),
             raise_after,
             clear_after,
+            hand_rule,
         };
         let dual_order = match self.get("dual_order").map(str::trim) {
             None | Some("") => None,
@@ -431,6 +528,27 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
     m.insert(keys::CLEAR_AFTER.into(), config.clear_after.to_string());
     m.insert(keys::NAME.into(), config.name_str().into());
     m.insert("model_id".into(), format!("{:#010x}", config.model_id));
+    if let Some(r) = &config.hand_rule {
+        m.insert(
+            keys::HAND_RULE_FRACTION.into(),
+            // 5 decimals: within a third of a Q0.15 step, so it reads back as the same value.
+            format!("{:.5}", Q15(r.strict.fraction_q15).to_f64()),
+        );
+        let guard = if r.guard_q15 == FusedHand::NO_GUARD {
+            1.0
+        } else {
+            Q15(r.guard_q15).to_f64()
+        };
+        m.insert(keys::HAND_RULE_GUARD.into(), format!("{guard:.5}"));
+        m.insert(
+            keys::HAND_RULE_WINDOW_S.into(),
+            // 4 decimals: far under half a frame at any rate, so it reads back as the same frames.
+            format!(
+                "{:.4}",
+                r.strict.window as f64 * 1000.0 / config.sample_rate_mhz.max(1) as f64
+            ),
+        );
+    }
     m
 }
 
@@ -448,6 +566,66 @@ mod tests {
         assert_eq!(c.stft, StftConfig::PAPER);
         assert_eq!(c.threshold_q15, 16_384);
         assert!(!c.force_diff && r.norm_mean.is_none());
+    }
+
+    #[test]
+    fn a_hand_rule_from_keys_or_the_option_and_each_bad_one_named() {
+        let want = FusedHand {
+            strict: LoadRule {
+                fraction_q15: 13_107,
+                window: 10,
+            },
+            guard_q15: 26_214,
+        };
+        // Unset: no rule (a v1 blob).
+        assert_eq!(
+            Settings::defaults().resolve().unwrap().config.hand_rule,
+            None
+        );
+        // The three keys (checkpoint metadata); 0.6 s at 16.7 Hz = 10.02 → 10 frames.
+        let mut s = Settings::defaults();
+        let meta: BTreeMap<String, String> = [
+            (keys::HAND_RULE_FRACTION.to_string(), "0.4".to_string()),
+            (keys::HAND_RULE_GUARD.to_string(), "0.8".to_string()),
+            (keys::HAND_RULE_WINDOW_S.to_string(), "0.6".to_string()),
+        ]
+        .into();
+        s.merge(&meta);
+        assert!(s.unknown.is_empty());
+        assert_eq!(s.resolve().unwrap().config.hand_rule, Some(want));
+        // The option overrides them; guard 1 = no guard; at 40 Hz 0.6 s is 24 frames.
+        s.set(HAND_RULE, "0.25, 1, 0.6");
+        s.set(keys::SAMPLE_RATE_HZ, "40");
+        let r = s.resolve().unwrap().config.hand_rule.unwrap();
+        assert_eq!(
+            (r.strict.fraction_q15, r.strict.window, r.guard_q15),
+            (8192, 24, FusedHand::NO_GUARD)
+        );
+        // The round trip through describe keeps it.
+        let c = s.resolve().unwrap().config;
+        let mut back = Settings::defaults();
+        back.merge(&describe(&c));
+        assert_eq!(back.resolve().unwrap().config.hand_rule, c.hand_rule);
+        // Each bad value names its key.
+        for (k, v, key) in [
+            (HAND_RULE, "0.4,0.8", HAND_RULE),
+            (HAND_RULE, "1.5,0.8,0.6", keys::HAND_RULE_FRACTION),
+            (HAND_RULE, "0.4,-0.1,0.6", keys::HAND_RULE_GUARD),
+            (HAND_RULE, "0.4,0.8,0.01", keys::HAND_RULE_WINDOW_S),
+            (HAND_RULE, "0.4,0.8,4", keys::HAND_RULE_WINDOW_S),
+            (HAND_RULE, "0.4,x,0.6", keys::HAND_RULE_GUARD),
+            (keys::HAND_RULE_FRACTION, "0.4", keys::HAND_RULE_GUARD),
+        ] {
+            let mut s = Settings::defaults();
+            s.set(k, v);
+            match s.resolve() {
+                Err(ExportError::Settings { key: got, msg }) => {
+                    assert_eq!(got, key, "{k}={v}: {msg}");
+                    assert!(!msg.contains('\n'), "one line: {msg}");
+                }
+                other => panic!("{k}={v}: {other:?}"),
+            }
+        }
     }
 
     #[test]

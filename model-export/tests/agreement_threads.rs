@@ -24,6 +24,7 @@ fn config() -> ModelConfig {
         threshold_q15: 16_384,
         raise_after: 1,
         clear_after: 1,
+        hand_rule: None,
     }
 }
 

@@ -1158,3 +1158,83 @@ fn verify_on_the_training_trials_says_in_sample() {
     ]);
     assert!(!String::from_utf8_lossy(&out.stderr).contains("in-sample"));
 }
+
+/// `--hand-rule` puts a hand rule into the blob (format v2) and `inspect` prints it; without it
+/// the blob stays v1; a value out of range is refused with one line naming its key (exit 10).
+#[test]
+fn hand_rule_option_writes_a_v2_blob_and_inspect_prints_it() {
+    let d = tmp("hand_rule");
+    let (v1, v2) = (d.join("v1.bin"), d.join("v2.bin"));
+    let model = fixture("torch_c.safetensors");
+    let export = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "export",
+            s(&model),
+            "--cell-bits",
+            "10",
+            "-o",
+            s(out),
+            "--no-report",
+        ];
+        args.extend_from_slice(extra);
+        let o = run(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    export(&v1, &[]);
+    export(&v2, &["--hand-rule", "0.4,0.8,0.6"]);
+    let (b1, b2) = (std::fs::read(&v1).unwrap(), std::fs::read(&v2).unwrap());
+    assert_eq!(&b1[4..6], &[1, 0], "no rule: format v1");
+    assert_eq!(&b2[4..6], &[2, 0], "with a rule: format v2");
+    // v2 = v1 + one 16-byte directory entry + the 12-byte record (the CRC differs).
+    assert_eq!(b2.len(), b1.len() + 16 + 12);
+    // The record, last before the CRC: 0.4 and 0.8 in Q0.15, 0.6 s at 16.7 Hz = 10 frames.
+    let n = b2.len();
+    let rec: Vec<i32> = (0..3)
+        .map(|k| i32::from_le_bytes(b2[n - 16 + 4 * k..n - 12 + 4 * k].try_into().unwrap()))
+        .collect();
+    assert_eq!(rec, [13_107, 26_214, 10]);
+    let o = run(&["inspect", s(&v2)]);
+    assert!(o.status.success());
+    let out = String::from_utf8_lossy(&o.stdout);
+    let field = |out: &str, k: &str| {
+        out.lines()
+            .find_map(|l| l.trim().strip_prefix(k).map(|v| v.trim().to_string()))
+    };
+    assert_eq!(field(&out, "format_version").as_deref(), Some("2"), "{out}");
+    assert!(out.contains("format v2"), "{out}");
+    assert!(
+        out.contains("rule < 0.40·peak OR (model flag AND load < 0.80·peak), peak over 10 frames"),
+        "{out}"
+    );
+    assert_eq!(
+        field(&out, "hand_rule_window_s").as_deref(),
+        Some("0.5988"),
+        "{out}"
+    );
+    let o = run(&["inspect", s(&v1)]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(field(&out, "format_version").as_deref(), Some("1"), "{out}");
+    assert!(!out.contains("hand_rule"), "{out}");
+    for (bad, key) in [
+        ("1.5,0.8,0.6", "hand_rule_fraction"),
+        ("0.4,0.8,9", "hand_rule_window_s"),
+        ("0.4,0.8", "hand_rule"),
+    ] {
+        let err = expect_fail(
+            &[
+                "export",
+                s(&fixture("torch_c.safetensors")),
+                "--cell-bits",
+                "10",
+                "-o",
+                s(&d.join("bad.bin")),
+                "--no-report",
+                "--hand-rule",
+                bad,
+            ],
+            10,
+            key,
+        );
+        assert_eq!(err.trim_end().lines().count(), 1, "one line: {err}");
+    }
+}

@@ -1,6 +1,7 @@
 //! Export → blob → firmware path, across the crates: the exporter, fed the shipped float
-//! checkpoint and the real trials, must reproduce the shipped blob byte for byte (the trainer
-//! and the exporter share one quantizer and one model id), and that blob must give the same
+//! checkpoint, the real trials and the card's hand rule, must reproduce the shipped blob (format
+//! v2) byte for byte (the trainer and the exporter share one quantizer and one model id), and
+//! that blob must give the same
 //! flags on the host core as the float model within the quantizer's documented agreement.
 use slipguard_core::blob::AlignedBlob;
 use slipguard_core::model::{ChannelState, Model};
@@ -19,7 +20,11 @@ fn exporter_reproduces_the_shipped_hand_force_blob() {
             format: None,
             keras_config: None,
             settings_file: None,
-            overrides: Vec::new(),
+            // The shipped hand rule (format v2), as the card's export command sets it.
+            overrides: vec![(
+                slipguard_export::settings::HAND_RULE.to_string(),
+                "0.4,0.8,0.6".to_string(),
+            )],
         },
         data: Some(default_data_dir()),
         validation: None,
@@ -42,6 +47,16 @@ fn exporter_reproduces_the_shipped_hand_force_blob() {
     // on every step where the float p is at least 0.05 from the threshold.
     let blob = AlignedBlob::new(&shipped);
     let model = Model::from_bytes(blob.as_bytes()).expect("shipped blob parses");
+    // Its hand rule: 0.40 and 0.80 in Q0.15 (0.4 · 32768 = 13107.2, 0.8 · 32768 = 26214.4),
+    // 0.6 s at 16.7 Hz = 10 frames.
+    let rule = model
+        .config()
+        .hand_rule
+        .expect("the shipped blob carries a hand rule");
+    assert_eq!(
+        (rule.strict.fraction_q15, rule.guard_q15, rule.strict.window),
+        (13_107, 26_214, 10)
+    );
     let th = model.config().threshold_q15 as f32 / 32768.0;
     let (_, channels) =
         read_tactile_csv(&default_data_dir().join("trials/Cheez_100_814_top_3/tactile.csv"))

@@ -19,6 +19,11 @@
 //!   0 while disarmed as the per-channel mask is. Its hysteresis restarts at grasp start and
 //!   on a reload, as the channels' states do; a channel's fault only takes that channel out of
 //!   the decision (not in contact), the other channels' evidence stands.
+//! - A blob with a hand rule (format v2, [`slipguard_core::blob::ModelConfig::hand_rule`])
+//!   fuses it with that decision ([`FusedHand::update`] over the model's hand flag and the hand
+//!   load of the channels in contact, [`LoadRule::hand_load`]): the hand flag is the fused one,
+//!   and status bit [`status::HAND_BY_RULE`] says the rule raised it while the model's hand
+//!   flag is down. The rule's state restarts where the hand decision's does.
 //! - Stream mode (flags, flags + samples, samples): [`App::emit_samples`] frames the model input
 //!   of every channel, with the phase marks (grasp start, lift, release) of the commands handled
 //!   since the previous frame. Samples and marks go out with or without a model, so a hand
@@ -32,7 +37,8 @@ use crate::profile::Profile;
 use crate::schedule::frame_timestamp_us;
 use slipguard_core::blob::{BlobError, IMAGE_MAGIC, InputUnit};
 use slipguard_core::decision::{
-    ContactConfig, DecisionConfig, DecisionState, HandConfig, HandOutput,
+    ContactConfig, DecisionConfig, DecisionState, FusedHand, HandConfig, HandOutput, LoadRule,
+    LoadRuleState,
 };
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::protocol::{
@@ -82,8 +88,11 @@ pub struct FrameResult {
     /// channel is not in contact.
     pub contact: u16,
     /// The hand flag (already false when disarmed): what the UNSTABLE line and status bit
-    /// [`status::HAND_UNSTABLE`] carry.
+    /// [`status::HAND_UNSTABLE`] carry; with a hand rule in the blob, the fused flag.
     pub hand_unstable: bool,
+    /// The hand flag is up and the model's own hand flag is down: the blob's hand rule raised
+    /// it (status bit [`status::HAND_BY_RULE`]; always false without a rule or when disarmed).
+    pub hand_by_rule: bool,
     /// The hand's p(unstable), Q0.15 (0 with no channel in contact or without a model).
     pub hand_p_q15: i16,
     /// p(unstable) per channel, or [`P_NONE`] for a channel not predicted on (faulted, not in
@@ -105,6 +114,10 @@ pub struct App<'m> {
     hand: HandConfig,
     /// The hand flag's hysteresis state.
     hand_state: DecisionState,
+    /// The blob's hand rule, fused with the hand decision (`None`: the hand decision alone).
+    rule: Option<FusedHand>,
+    /// The hand rule's recent loads (reset with `hand_state`).
+    rule_state: LoadRuleState,
     /// Channels whose state must be reset before their next step (after a fault).
     stale: u16,
     armed: bool,
@@ -170,6 +183,7 @@ impl<'m> App<'m> {
                 },
             ),
         };
+        let rule = model.as_ref().ok().and_then(|m| m.config().hand_rule);
         Self {
             profile,
             model,
@@ -177,6 +191,8 @@ impl<'m> App<'m> {
             contact,
             hand,
             hand_state: DecisionState::default(),
+            rule,
+            rule_state: LoadRuleState::new(),
             stale: 0,
             armed: true,
             tared: false,
@@ -251,6 +267,11 @@ impl<'m> App<'m> {
         self.hand
     }
 
+    /// The blob's hand rule fused with the hand decision, if it carries one.
+    pub fn hand_rule(&self) -> Option<FusedHand> {
+        self.rule
+    }
+
     /// Whether flagging is on.
     pub fn armed(&self) -> bool {
         self.armed
@@ -288,6 +309,7 @@ impl<'m> App<'m> {
             fault: input.fault,
             contact: 0,
             hand_unstable: false,
+            hand_by_rule: false,
             hand_p_q15: 0,
             p: [P_NONE; MAX_CHANNELS],
             value: [0; MAX_CHANNELS],
@@ -331,14 +353,30 @@ impl<'m> App<'m> {
             r.p[..n].iter().map(|&p| (p != P_NONE).then_some(p as i16)),
         );
         r.hand_p_q15 = p_unstable_q15;
-        r.hand_unstable = unstable && self.armed;
+        let hand = match &self.rule {
+            Some(rule) => {
+                // The hand load: Σ |x| (Q1.15, the model's input scale) of the channels in
+                // contact, exactly what the model stepped on.
+                let scale = model.scale();
+                let load = LoadRule::hand_load(
+                    (0..n).map(|c| (r.contact & (1 << c) != 0).then(|| scale.to_q15(r.value[c]))),
+                );
+                rule.update(&mut self.rule_state, unstable, load)
+            }
+            None => unstable,
+        };
+        r.hand_unstable = hand && self.armed;
+        r.hand_by_rule = r.hand_unstable && !unstable;
         r
     }
 
-    fn status_bits(&self, late: bool, hand_unstable: bool) -> u8 {
+    fn status_bits(&self, late: bool, r: &FrameResult) -> u8 {
         let mut st = 0;
-        if hand_unstable {
+        if r.hand_unstable {
             st |= status::HAND_UNSTABLE;
+        }
+        if r.hand_by_rule {
+            st |= status::HAND_BY_RULE;
         }
         if self.armed {
             st |= status::ARMED;
@@ -363,7 +401,7 @@ impl<'m> App<'m> {
             seq: self.next_seq(),
             msg: Message::Samples(Samples {
                 timestamp_us: frame_timestamp_us(r.index, self.rate_mhz()),
-                status: self.status_bits(late, r.hand_unstable),
+                status: self.status_bits(late, r),
                 marks: self.marks,
                 channels: self.profile.channels.min(MAX_CHANNELS) as u8,
                 unit: self.profile.unit as u8,
@@ -404,7 +442,7 @@ impl<'m> App<'m> {
         if !self.stream.flags() {
             return None;
         }
-        let st = self.status_bits(late, r.hand_unstable);
+        let st = self.status_bits(late, r);
         Some(Frame {
             seq: self.next_seq(),
             msg: Message::Flags(Flags {
@@ -550,6 +588,7 @@ impl<'m> App<'m> {
                     s.reset();
                 }
                 self.hand_state = DecisionState::default();
+                self.rule_state = LoadRuleState::new();
                 self.stale = 0;
                 self.armed = true;
                 (ReplyStatus::Ok, ReplyBody::GraspStarted)

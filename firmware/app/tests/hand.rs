@@ -1,11 +1,13 @@
 //! The hand decision through the app: contact gating of every channel, the model restart at
-//! each contact onset, the hand flag in the flag frame, and the threshold command.
+//! each contact onset, the hand flag in the flag frame, the threshold command, and a blob's
+//! hand rule (format v2) fused with the hand flag.
 
 use slipguard_app::app::{App, FrameResult};
 use slipguard_app::decimate::RATIO;
 use slipguard_app::frontend::{FrameInput, Frontend};
 use slipguard_app::profile::Profile;
 use slipguard_core::blob::AlignedBlob;
+use slipguard_core::decision::{FusedHand, LoadRule, Q15};
 use slipguard_core::float::FloatModel;
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::protocol::{
@@ -22,12 +24,19 @@ const LOADED: u16 = 600;
 /// A model of the bench model's kind whose p(unstable) is about 0.9 whatever the input:
 /// dense weights 0, biases −1.1 / +1.1 (softmax: 1 / (1 + e^−2.2) = 0.90).
 fn high_p_blob() -> AlignedBlob {
+    const_p_blob(1.1, None)
+}
+
+/// A model of the bench model's kind whose p(unstable) is σ(2·`b`) whatever the input (dense
+/// weights 0, biases −b / +b), with `rule` in the blob (format v2) when given.
+fn const_p_blob(b: f32, rule: Option<FusedHand>) -> AlignedBlob {
     let bench = AlignedBlob::new(GOLDEN);
     let mut config = *Model::from_bytes(bench.as_bytes()).unwrap().config();
     config.hidden = [16, 0];
+    config.hand_rule = rule;
     let mut m = FloatModel::init_like_pytorch(config, 7);
     m.dense.w.iter_mut().for_each(|w| *w = 0.0);
-    m.dense.b = vec![-1.1, 1.1];
+    m.dense.b = vec![-b, b];
     let trace: Vec<f32> = (0..400).map(|i| 1000.0 + (i % 50) as f32 * 40.0).collect();
     m.fit_normalisation(&[&trace]);
     let (blob, _) = quantize(&m, &[&trace], None).unwrap();
@@ -258,4 +267,147 @@ fn the_threshold_command_sets_the_hand_decision_too() {
     let c = run(&mut app, &inputs[40..]);
     let hand: Vec<bool> = c.iter().map(|r| r.hand_unstable).collect();
     assert_eq!(&hand[..3], [true, false, false], "{hand:?}");
+}
+
+/// The rule of the fused tests: the rule alone under 0.4 of the peak over 10 frames, the
+/// model's flag while the load is under `guard` of it.
+fn rule(strict: f64, guard: f64) -> FusedHand {
+    FusedHand {
+        strict: LoadRule {
+            fraction_q15: Q15::from_f64(strict).0,
+            window: 10,
+        },
+        guard_q15: Q15::from_f64(guard).0,
+    }
+}
+
+/// Channels 2 and 7 loaded from frame 10; from frame 50 channel 7 drops to about a quarter of
+/// its load and channel 2 to about a half (both stay in contact: ≥ 500 mN).
+fn drop_at_50(i: usize, c: usize) -> u16 {
+    let full = LOADED;
+    let part = |k: u16| IDLE + (LOADED - IDLE) / k;
+    match (c, i) {
+        (2 | 7, 0..10) => IDLE,
+        (2 | 7, 10..50) => full,
+        (2, _) => part(2),
+        (7, _) => part(4),
+        _ => IDLE,
+    }
+}
+
+/// The rule by hand in f64 on the frames' model inputs (mN): the hand load is the sum of the
+/// contact channels' inputs; up while it is below `f` of its peak over the last 10 frames.
+fn below_peak(results: &[FrameResult], f: f64) -> Vec<bool> {
+    let loads: Vec<f64> = results
+        .iter()
+        .map(|r| {
+            (0..16)
+                .filter(|c| r.contact & (1 << c) != 0)
+                .map(|c| r.value[c].abs() as f64)
+                .sum()
+        })
+        .collect();
+    (0..loads.len())
+        .map(|t| {
+            let peak = loads[t.saturating_sub(9)..=t]
+                .iter()
+                .copied()
+                .fold(0.0, f64::max);
+            peak > 0.0 && loads[t] < f * peak
+        })
+        .collect()
+}
+
+#[test]
+fn a_blob_rule_raises_the_hand_flag_on_a_load_drop_with_the_model_flag_low() {
+    // p ≈ σ(−2.2) = 0.10: the model's hand flag never rises (threshold of the bench model).
+    let inputs = frames(drop_at_50, 90);
+    let v2 = const_p_blob(-1.1, Some(rule(0.4, 1.0)));
+    assert_eq!(&v2.as_bytes()[4..6], &[2, 0], "a v2 blob");
+    let mut app = App::new(Profile::HAND, v2.as_bytes());
+    assert_eq!(app.hand_rule(), Some(rule(0.4, 1.0)));
+    let mut results = Vec::new();
+    let mut wire = Vec::new();
+    for inp in &inputs {
+        let r = app.infer(inp);
+        wire.push(flags_of(app.emit(&r, false)));
+        results.push(r);
+    }
+    let model_threshold = app.hand_config().decision.threshold_q15;
+    assert!(results.iter().all(|r| r.hand_p_q15 < model_threshold));
+    let want = below_peak(&results, 0.4);
+    let hand: Vec<bool> = results.iter().map(|r| r.hand_unstable).collect();
+    assert_eq!(hand, want);
+    let up: Vec<usize> = (0..hand.len()).filter(|&i| hand[i]).collect();
+    // The drop reaches the model a frame or two after the ADC; the flag holds while the full
+    // load is in the 10-frame window, then clears.
+    assert!(!up.is_empty() && up[0] >= 50 && up[0] <= 53, "{up:?}");
+    assert!(*up.last().unwrap() <= 63, "{up:?}");
+    for (k, (r, f)) in results.iter().zip(&wire).enumerate() {
+        // The model's own flag is down, so every raise is the rule's, on the wire too.
+        assert_eq!(r.hand_by_rule, r.hand_unstable, "frame {k}");
+        assert_eq!(f.hand_unstable(), r.hand_unstable, "frame {k}");
+        assert_eq!(f.hand_by_rule(), r.hand_by_rule, "frame {k}");
+        assert_eq!(f.status & status::HAND_BY_RULE != 0, r.hand_by_rule);
+    }
+    // The same model without the rule (v1) never raises the hand flag on the same frames.
+    let v1 = const_p_blob(-1.1, None);
+    assert_eq!(&v1.as_bytes()[4..6], &[1, 0], "a v1 blob");
+    let mut plain = App::new(Profile::HAND, v1.as_bytes());
+    let r1 = run(&mut plain, &inputs);
+    assert!(r1.iter().all(|r| !r.hand_unstable && !r.hand_by_rule));
+    // Grasp start resets the rule's peak: right after it, the low load is the peak.
+    let mut app = App::new(Profile::HAND, v2.as_bytes());
+    run(&mut app, &inputs[..51]);
+    app.handle(Ok(Frame {
+        seq: 3,
+        msg: Message::Command(Command::GraspStart),
+    }));
+    let after = run(&mut app, &inputs[51..]);
+    assert!(
+        after.iter().all(|r| !r.hand_unstable),
+        "no old peak after grasp start"
+    );
+    // Disarmed, the rule raises nothing either.
+    let mut app = App::new(Profile::HAND, v2.as_bytes());
+    run(&mut app, &inputs[..40]);
+    app.handle(Ok(Frame {
+        seq: 4,
+        msg: Message::Command(Command::Release),
+    }));
+    let off = run(&mut app, &inputs[40..]);
+    assert!(off.iter().all(|r| !r.hand_unstable && !r.hand_by_rule));
+}
+
+#[test]
+fn a_blob_guard_blocks_the_model_flag_at_full_load() {
+    // p ≈ 0.9: the model's hand flag is up in every frame with contact; the rule alone never
+    // flags (strict 0), and the model's flag counts only under 0.8 of the peak.
+    let inputs = frames(drop_at_50, 90);
+    let blob = const_p_blob(1.1, Some(rule(0.0, 0.8)));
+    let mut app = App::new(Profile::HAND, blob.as_bytes());
+    let results = run(&mut app, &inputs);
+    let model_threshold = app.hand_config().decision.threshold_q15;
+    let want = below_peak(&results, 0.8);
+    for (k, r) in results.iter().enumerate() {
+        let model_up = r.contact != 0 && r.hand_p_q15 >= model_threshold;
+        assert_eq!(r.hand_unstable, model_up && want[k], "frame {k}");
+        assert!(!r.hand_by_rule, "frame {k}: the model's flag was up");
+    }
+    // Held at full load (frames 20..50, in contact): the model's flag is up, the guard holds
+    // the hand flag down.
+    assert!(
+        results[20..50]
+            .iter()
+            .all(|r| r.contact != 0 && !r.hand_unstable)
+    );
+    assert!(
+        results[50..56].iter().any(|r| r.hand_unstable),
+        "the drop passes"
+    );
+    // Without the guard (v1) the same model flags at full load.
+    let v1 = const_p_blob(1.1, None);
+    let mut plain = App::new(Profile::HAND, v1.as_bytes());
+    let r1 = run(&mut plain, &inputs);
+    assert!(r1[20..50].iter().all(|r| r.hand_unstable));
 }

@@ -1,9 +1,11 @@
-//! Model blob format v1: parsed zero-copy from `&[u8]` (flash on the target, an aligned buffer
-//! on the host). The byte-by-byte layout is in `docs/model-format.md`; this module is its only
-//! parser and (behind `std`) its only writer.
+//! Model blob formats v1 and v2: parsed zero-copy from `&[u8]` (flash on the target, an aligned
+//! buffer on the host). The byte-by-byte layout is in `docs/model-format.md`; this module is its
+//! only parser and (behind `std`) its only writer.
 //!
 //! Layout: a 64-byte header, a tensor directory of 16-byte entries, the tensors (each at a
 //! 4-byte aligned offset), and a CRC-32 (ISO-HDLC, as zlib's `crc32`) of everything before it.
+//! Version 2 is version 1 plus one more tensor, the hand-rule record ([`TensorKind::HandRule`]:
+//! the fused hand decision [`FusedHand`]); a model without a rule is written as version 1.
 //! All integers are little-endian. The blob must start at a 4-byte aligned address so that the
 //! `i32` tables can be read in place.
 //!
@@ -13,6 +15,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::features::FeatureLayout;
 use crate::features::stft::{StftConfig, StftError, WindowShape};
+use crate::load_rule::{FusedHand, LOAD_WINDOW_MAX, LoadRule};
 use crate::{MAX_HIDDEN, MAX_INPUT};
 
 /// First four bytes of every blob.
@@ -23,16 +26,20 @@ pub const MAGIC: [u8; 4] = *b"SGMB";
 /// fingerprint, checked on the source before the copy), followed by 4 bytes: the CRC-32 of the
 /// image's first `total length` bytes. Built in RAM, never written to flash or sent.
 pub const IMAGE_MAGIC: [u8; 4] = *b"SGMI";
-/// The format version this parser reads.
-pub const VERSION: u16 = 1;
+/// The newest format version this parser reads (it reads every version from
+/// [`VERSION_1`]): a blob with a hand rule ([`ModelConfig::hand_rule`]).
+pub const VERSION: u16 = 2;
+/// The version of a blob without a hand rule (the writer still writes it, byte for byte).
+pub const VERSION_1: u16 = 1;
 /// Size of the fixed header.
 pub const HEADER_LEN: usize = 64;
 /// Size of one tensor directory entry.
 pub const DIR_ENTRY_LEN: usize = 16;
 /// Size of the trailing CRC.
 pub const CRC_LEN: usize = 4;
-/// Most tensors a v1 blob can hold (feature norm, 2 × LSTM weights and row params, dense weights and params).
-pub const MAX_TENSORS: usize = 7;
+/// Most tensors a blob can hold (feature norm, 2 × LSTM weights and row params, dense weights
+/// and params, and in v2 the hand-rule record).
+pub const MAX_TENSORS: usize = 8;
 /// The CRC used by the blob (CRC-32/ISO-HDLC: zlib, PNG, Ethernet).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
@@ -253,6 +260,14 @@ pub mod keys {
     pub const NORM_MEAN: &str = "norm_mean";
     /// JSON array of the feature standard deviations.
     pub const NORM_STD: &str = "norm_std";
+    /// The hand rule's strict fraction of the recent peak (0…1; 0 = the rule never flags
+    /// alone): with [`HAND_RULE_GUARD`] and [`HAND_RULE_WINDOW_S`] the blob's hand rule
+    /// ([`super::ModelConfig::hand_rule`], format v2). Absent: no rule (format v1).
+    pub const HAND_RULE_FRACTION: &str = "hand_rule_fraction";
+    /// The hand rule's guard fraction (0…1; 1 = no guard: every model flag counts).
+    pub const HAND_RULE_GUARD: &str = "hand_rule_guard";
+    /// The hand rule's peak window, seconds (1 to 64 frames at the model's rate).
+    pub const HAND_RULE_WINDOW_S: &str = "hand_rule_window_s";
 }
 
 /// Flag bits of header byte 17.
@@ -296,6 +311,9 @@ pub struct ModelConfig {
     pub raise_after: u8,
     /// Consecutive steps below the threshold before the flag clears (>= 1).
     pub clear_after: u8,
+    /// The fused hand decision the firmware runs in place of the model's hand flag alone
+    /// (format v2's hand-rule record); `None` in a v1 blob: the model's hand flag as it is.
+    pub hand_rule: Option<FusedHand>,
 }
 
 impl ModelConfig {
@@ -380,6 +398,9 @@ pub enum TensorKind {
     DenseWeights = 4,
     /// Dense per-row requantisation, [`DenseRowParams`] rows.
     DenseRowParams = 5,
+    /// The hand-rule record (format v2 only): i32, 1 row × 3, `[strict_q15, guard_q15,
+    /// window]` ([`hand_rule_record`]).
+    HandRule = 6,
 }
 
 impl TensorKind {
@@ -390,6 +411,7 @@ impl TensorKind {
             3 => Self::LstmRowParams,
             4 => Self::DenseWeights,
             5 => Self::DenseRowParams,
+            6 => Self::HandRule,
             _ => return None,
         })
     }
@@ -528,6 +550,8 @@ pub enum BlobError {
     TensorOutOfBounds(TensorKind),
     /// A requantisation shift outside 1..=62 or a cell format outside 1..=15.
     QuantParam(TensorKind),
+    /// A hand-rule record out of range (fractions 0..=32 767, window 1..=[`LOAD_WINDOW_MAX`]).
+    BadHandRule,
 }
 
 impl BlobError {
@@ -553,6 +577,7 @@ impl BlobError {
             BlobError::TensorShape(k) => (16, k as u32),
             BlobError::TensorOutOfBounds(k) => (17, k as u32),
             BlobError::QuantParam(k) => (18, k as u32),
+            BlobError::BadHandRule => (19, 0),
         }
     }
 }
@@ -567,7 +592,7 @@ impl core::fmt::Display for BlobError {
             Self::UnsupportedVersion(v) => {
                 write!(
                     f,
-                    "model blob format version {v} is not supported (this build reads {VERSION})"
+                    "model blob format version {v} is not supported (this build reads {VERSION_1} to {VERSION})"
                 )
             }
             Self::BadLength => write!(f, "model blob header or total length is impossible"),
@@ -601,6 +626,10 @@ impl core::fmt::Display for BlobError {
             Self::QuantParam(k) => write!(
                 f,
                 "tensor {k:?} holds a quantisation parameter out of range"
+            ),
+            Self::BadHandRule => write!(
+                f,
+                "hand-rule record out of range (strict and guard fractions 0..=32767 in Q0.15, window 1..={LOAD_WINDOW_MAX} frames)"
             ),
         }
     }
@@ -653,9 +682,11 @@ impl<'a> ModelBlob<'a> {
             return Err(BlobError::BadMagic);
         }
         let version = u16_at(bytes, 4);
-        if version != VERSION {
+        if !(VERSION_1..=VERSION).contains(&version) {
             return Err(BlobError::UnsupportedVersion(version));
         }
+        // Version 2 is version 1 plus the hand-rule record.
+        let with_rule = version == VERSION;
         let header_len = u16_at(bytes, 6) as usize;
         let total = u32_at(bytes, 8) as usize;
         if header_len != HEADER_LEN || total < HEADER_LEN + CRC_LEN {
@@ -694,11 +725,11 @@ impl<'a> ModelBlob<'a> {
         if bytes.as_ptr().align_offset(4) != 0 {
             return Err(BlobError::Misaligned);
         }
-        let config = parse_config(bytes)?;
+        let mut config = parse_config(bytes)?;
 
         let tensor_count = u16_at(bytes, 48) as usize;
         let lstm_count = config.variant.lstm_count();
-        let expected_tensors = 1 + 2 * lstm_count + 2;
+        let expected_tensors = 1 + 2 * lstm_count + 2 + with_rule as usize;
         if tensor_count > MAX_TENSORS {
             return Err(BlobError::InconsistentSizes);
         }
@@ -710,8 +741,8 @@ impl<'a> ModelBlob<'a> {
             });
         }
 
-        // Directory: slot 0 norm, 1/2 LSTM0 weights/params, 3/4 LSTM1, 5/6 dense.
-        let mut slots: [Option<DirEntry>; 7] = [None; 7];
+        // Directory: slot 0 norm, 1/2 LSTM0 weights/params, 3/4 LSTM1, 5/6 dense, 7 hand rule.
+        let mut slots: [Option<DirEntry>; MAX_TENSORS] = [None; MAX_TENSORS];
         for i in 0..tensor_count {
             let e = &bytes[HEADER_LEN + i * DIR_ENTRY_LEN..HEADER_LEN + (i + 1) * DIR_ENTRY_LEN];
             let kind = TensorKind::from_u8(e[0]).ok_or(BlobError::UnknownTensor)?;
@@ -726,6 +757,9 @@ impl<'a> ModelBlob<'a> {
                 TensorKind::LstmRowParams if index < lstm_count => 2 + 2 * index,
                 TensorKind::DenseWeights => 5,
                 TensorKind::DenseRowParams => 6,
+                // A v1 blob has no hand rule: the kind is unknown to v1.
+                TensorKind::HandRule if with_rule => 7,
+                TensorKind::HandRule => return Err(BlobError::UnknownTensor),
                 _ => return Err(BlobError::InconsistentSizes),
             };
             if !matches!(kind, TensorKind::LstmWeights | TensorKind::LstmRowParams) && index != 0 {
@@ -764,9 +798,14 @@ impl<'a> ModelBlob<'a> {
                 TensorKind::LstmRowParams,
                 TensorKind::DenseWeights,
                 TensorKind::DenseRowParams,
+                TensorKind::HandRule,
             ];
             for (slot, kind) in kinds.iter().enumerate() {
-                let needed = !(3..5).contains(&slot) || lstm_count == 2;
+                let needed = match slot {
+                    3 | 4 => lstm_count == 2,
+                    7 => with_rule,
+                    _ => true,
+                };
                 if needed && slots[slot].is_none() {
                     return Err(BlobError::MissingTensor(*kind));
                 }
@@ -851,6 +890,19 @@ impl<'a> ModelBlob<'a> {
         if rows.iter().any(|r| !(1..=62).contains(&r.shift)) {
             return Err(BlobError::QuantParam(TensorKind::DenseRowParams));
         }
+        if with_rule {
+            let record: &[[i32; 3]] = i32_table(
+                bytes,
+                get(7, TensorKind::HandRule)?,
+                1,
+                3,
+                TensorKind::HandRule,
+            )?;
+            let record = record
+                .first()
+                .ok_or(BlobError::TensorShape(TensorKind::HandRule))?;
+            config.hand_rule = Some(hand_rule_of_record(*record)?);
+        }
         Ok(Self {
             config,
             crc: stored,
@@ -908,6 +960,45 @@ fn i32_table<T: Pod>(
     bytemuck::try_cast_slice(raw).map_err(|_| BlobError::Misaligned)
 }
 
+/// The hand-rule record of format v2 (one i32 row): `[strict fraction Q0.15, guard fraction
+/// Q0.15 (32 767 = [`FusedHand::NO_GUARD`]), window in frames]`. Refuses a rule the record
+/// cannot hold or the firmware cannot run ([`BlobError::BadHandRule`]): fractions outside
+/// 0..=32 767, a window outside 1..=[`LOAD_WINDOW_MAX`].
+pub fn hand_rule_record(rule: &FusedHand) -> Result<[i32; 3], BlobError> {
+    let record = record_of(rule);
+    hand_rule_of_record(record)?;
+    Ok(record)
+}
+
+/// The record's three values, unchecked.
+fn record_of(rule: &FusedHand) -> [i32; 3] {
+    [
+        rule.strict.fraction_q15 as i32,
+        rule.guard_q15 as i32,
+        rule.strict.window as i32,
+    ]
+}
+
+/// The fused hand decision of a v2 hand-rule record ([`hand_rule_record`]), range-checked.
+pub fn hand_rule_of_record(record: [i32; 3]) -> Result<FusedHand, BlobError> {
+    let [strict, guard, window] = record;
+    let fraction = 0..=i16::MAX as i32;
+    if !fraction.contains(&strict)
+        || !fraction.contains(&guard)
+        || !(1..=LOAD_WINDOW_MAX as i32).contains(&window)
+    {
+        return Err(BlobError::BadHandRule);
+    }
+    // All three checked to fit: strict and guard in 0..=i16::MAX, window in 1..=64.
+    Ok(FusedHand {
+        strict: LoadRule {
+            fraction_q15: strict as i16,
+            window: window as u8,
+        },
+        guard_q15: guard as i16,
+    })
+}
+
 fn parse_config(b: &[u8]) -> Result<ModelConfig, BlobError> {
     let variant = Variant::from_u8(b[16]).ok_or(BlobError::UnknownVariant(b[16]))?;
     let flag_bits = b[17];
@@ -958,6 +1049,7 @@ fn parse_config(b: &[u8]) -> Result<ModelConfig, BlobError> {
         threshold_q15,
         raise_after,
         clear_after,
+        hand_rule: None,
     };
 
     if variant.uses_bands() {
@@ -1037,13 +1129,20 @@ impl AlignedBlob {
     }
 }
 
-/// Serialises a model into blob format v1. The only writer of the format.
+/// Serialises a model: format v1 without a hand rule, v2 with one ([`ModelConfig::hand_rule`],
+/// its record last). The only writer of the format. A rule out of range
+/// ([`hand_rule_record`]) is written as given and refused by the parser: check it first.
 #[cfg(any(test, feature = "std"))]
 pub fn write_blob(config: &ModelConfig, tensors: &BlobTensors) -> Vec<u8> {
     let lstm_count = config.variant.lstm_count();
+    let version = if config.hand_rule.is_some() {
+        VERSION
+    } else {
+        VERSION_1
+    };
     let mut h = Vec::with_capacity(HEADER_LEN);
     h.extend_from_slice(&MAGIC);
-    h.extend_from_slice(&VERSION.to_le_bytes());
+    h.extend_from_slice(&version.to_le_bytes());
     h.extend_from_slice(&(HEADER_LEN as u16).to_le_bytes());
     h.extend_from_slice(&0u32.to_le_bytes()); // total length, patched below
     h.extend_from_slice(&config.model_id.to_le_bytes());
@@ -1085,7 +1184,7 @@ pub fn write_blob(config: &ModelConfig, tensors: &BlobTensors) -> Vec<u8> {
             0
         });
     }
-    let tensor_count = 3 + 2 * lstm_count;
+    let tensor_count = 3 + 2 * lstm_count + config.hand_rule.is_some() as usize;
     h.extend_from_slice(&(tensor_count as u16).to_le_bytes());
     h.extend_from_slice(&0u16.to_le_bytes());
     h.extend_from_slice(&config.name);
@@ -1138,6 +1237,17 @@ pub fn write_blob(config: &ModelConfig, tensors: &BlobTensors) -> Vec<u8> {
         3,
         bytemuck::cast_slice(dp).to_vec(),
     ));
+    if let Some(rule) = &config.hand_rule {
+        let record = record_of(rule);
+        items.push((
+            TensorKind::HandRule,
+            0,
+            dtype::I32,
+            1,
+            3,
+            bytemuck::cast_slice(&record).to_vec(),
+        ));
+    }
 
     let mut out = h;
     let dir_start = out.len();

@@ -11,7 +11,7 @@
 //!            ─▶ lstm (16x8 quantized cell, h Q0.15, c Q(15-C).C) ─▶ decision (dense → p Q0.15 → flag)
 //! ```
 //!
-//! [`blob`] parses the model blob (format v1, `docs/model-format.md`) zero-copy from flash and
+//! [`blob`] parses the model blob (formats v1 and v2, `docs/model-format.md`) zero-copy from flash and
 //! [`model`] ties the stages together over a per-channel [`model::ChannelState`].
 //! Behind the `std` feature, [`float`] is the f32 reference of exactly the same network and
 //! [`quantize`] turns float weights into a blob, and [`batch`] steps many channels at once
@@ -32,6 +32,7 @@ pub mod decision;
 pub mod dsp;
 pub mod features;
 pub mod fixed;
+pub mod load_rule;
 pub mod lstm;
 pub mod model;
 pub mod model_ram;

@@ -240,7 +240,7 @@ const FLAGS_BODY: Body = Body {
         field(
             "status",
             WireType::U8,
-            "bit 0 ARMED, bit 1 LATE, bit 2 TARED, bit 3 HAND_UNSTABLE; others 0",
+            "bit 0 ARMED, bit 1 LATE, bit 2 TARED, bit 3 HAND_UNSTABLE, bit 4 HAND_BY_RULE; others 0",
         ),
         field(
             "channels",
@@ -634,6 +634,10 @@ codes! {
         /// (`decision::HandConfig`) is up. Always 0 while not armed. The board's UNSTABLE line
         /// carries the same bit.
         HAND_UNSTABLE = 1 << 3;
+        /// The hand flag is up while the model's own hand flag is down: the model blob's hand
+        /// rule (format v2, `decision::FusedHand`) raised it. Always 0 without a rule in the
+        /// blob and while not armed; set only with HAND_UNSTABLE.
+        HAND_BY_RULE = 1 << 4;
     }
 }
 
@@ -668,6 +672,12 @@ impl Flags {
     /// Whether the hand flag ([`status::HAND_UNSTABLE`]) is up.
     pub const fn hand_unstable(&self) -> bool {
         self.status & status::HAND_UNSTABLE != 0
+    }
+
+    /// Whether the model blob's hand rule raised the hand flag while the model's own hand flag
+    /// is down ([`status::HAND_BY_RULE`]).
+    pub const fn hand_by_rule(&self) -> bool {
+        self.status & status::HAND_BY_RULE != 0
     }
 
     /// Bit c set: channel c is in contact, i.e. predicted on. A device with a model sends

@@ -1,16 +1,41 @@
-//! Model blob v1: golden bytes, and one specific error for each kind of damage.
+//! Model blob v1 and v2: golden bytes, and one specific error for each kind of damage.
 mod common;
 
 use slipguard_core::blob::{
     AlignedBlob, BlobError, BlobTensors, CRC32, DenseRowParams, FeatureNorm, HEADER_LEN,
     LstmRowParams, ModelBlob, TensorKind, Variant, write_blob,
 };
+use slipguard_core::decision::{FusedHand, LoadRule};
 use slipguard_core::model::{ChannelState, Model};
 
 const GOLDEN: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/tests/fixtures/golden_blob_v1.hex"
 );
+const GOLDEN_V2: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/fixtures/golden_blob_v2.hex"
+);
+
+/// The fused hand decision of the v2 golden blob: the rule alone under 0.4 of the peak over 10
+/// frames, the model's flag while the load is under 0.8 of it.
+fn rule() -> FusedHand {
+    FusedHand {
+        strict: LoadRule {
+            fraction_q15: 13_107,
+            window: 10,
+        },
+        guard_q15: 26_214,
+    }
+}
+
+/// [`small`] with the hand rule: a v2 blob.
+fn small_v2() -> (slipguard_core::blob::ModelConfig, BlobTensors) {
+    let (mut config, tensors) = small();
+    config.name = *b"golden-v2\0\0\0";
+    config.hand_rule = Some(rule());
+    (config, tensors)
+}
 
 /// A small variant (a) model, H = 3, force + d(t), with hand-picked integer tensors.
 fn small() -> (slipguard_core::blob::ModelConfig, BlobTensors) {
@@ -163,8 +188,16 @@ fn each_kind_of_damage_has_its_own_error() {
     bad[0] = b'X';
     assert_eq!(parse(&bad), Err(BlobError::BadMagic));
     let mut bad = good.clone();
-    bad[4] = 2;
-    assert_eq!(parse(&bad), Err(BlobError::UnsupportedVersion(2)));
+    bad[4] = 3;
+    assert_eq!(parse(&bad), Err(BlobError::UnsupportedVersion(3)));
+    let mut bad = good.clone();
+    bad[4..6].copy_from_slice(&0u16.to_le_bytes());
+    assert_eq!(parse(&bad), Err(BlobError::UnsupportedVersion(0)));
+    // A v1 blob relabelled v2 lacks the hand-rule record v2 requires.
+    assert_eq!(
+        patched(|b| b[4] = 2),
+        Err(BlobError::MissingTensor(TensorKind::HandRule))
+    );
     let mut bad = good.clone();
     bad[200] ^= 0x10;
     assert!(matches!(parse(&bad), Err(BlobError::BadCrc { .. })));
@@ -277,5 +310,158 @@ fn no_truncation_or_mutation_panics() {
     }
     println!(
         "{accepted} harmless single-byte header changes accepted (ids, names, thresholds, offsets)"
+    );
+}
+
+#[test]
+fn golden_bytes_of_a_small_v2_blob() {
+    let (config, tensors) = small_v2();
+    let bytes = write_blob(&config, &tensors);
+    if common::blessing() {
+        std::fs::write(GOLDEN_V2, hex(&bytes)).unwrap();
+    }
+    let want =
+        std::fs::read_to_string(GOLDEN_V2).expect("golden file (SLIPGUARD_BLESS=1 writes it)");
+    assert_eq!(
+        hex(&bytes),
+        want,
+        "blob bytes changed: a format change needs a new version"
+    );
+    // Independent spot checks of the documented layout (docs/model-format.md, version 2).
+    let u16_at = |o: usize| u16::from_le_bytes([bytes[o], bytes[o + 1]]);
+    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+    assert_eq!(&bytes[0..4], b"SGMB");
+    assert_eq!(u16_at(4), 2, "version");
+    assert_eq!(u32_at(8) as usize, bytes.len());
+    assert_eq!(u16_at(48), 6, "tensor count: v1's 5 and the hand rule");
+    // The sixth directory entry: kind 6, index 0, i32, 1 × 3, 12 bytes, at a 4-aligned offset.
+    let e = HEADER_LEN + 5 * 16;
+    assert_eq!(&bytes[e..e + 4], &[6, 0, 2, 0]);
+    assert_eq!((u16_at(e + 4), u16_at(e + 6)), (1, 3));
+    assert_eq!(u32_at(e + 12), 12);
+    let o = u32_at(e + 8) as usize;
+    assert_eq!(o % 4, 0);
+    let record: Vec<i32> = (0..3).map(|k| u32_at(o + 4 * k) as i32).collect();
+    assert_eq!(record, [13_107, 26_214, 10]);
+    assert_eq!(
+        o + 12 + 4,
+        bytes.len(),
+        "the record is the last tensor, the CRC follows"
+    );
+    assert_eq!(
+        u32_at(bytes.len() - 4),
+        CRC32.checksum(&bytes[..bytes.len() - 4])
+    );
+
+    let blob = AlignedBlob::new(&bytes);
+    let parsed = blob.parse().expect("golden v2 blob parses");
+    assert_eq!(parsed.config, config);
+    assert_eq!(parsed.config.hand_rule, Some(rule()));
+    assert_eq!(parsed.lstm[0].weights, tensors.lstm[0].0.as_slice());
+    assert_eq!(parsed.dense.rows, tensors.dense.1.as_slice());
+
+    // The v1 writer is unchanged without a rule, and the same tensors in v1 give the same
+    // model steps (the rule is not part of the network).
+    let (c1, t1) = small();
+    let v1 = AlignedBlob::new(&write_blob(&c1, &t1));
+    let (m1, m2) = (
+        Model::from_bytes(v1.as_bytes()).unwrap(),
+        Model::from_bytes(blob.as_bytes()).unwrap(),
+    );
+    let (mut s1, mut s2) = (ChannelState::new(), ChannelState::new());
+    for raw in [0, 3000, 5000, 4000, 200, 9000] {
+        assert_eq!(m1.step(&mut s1, raw), m2.step(&mut s2, raw));
+    }
+
+    // The RAM image keeps the rule (a quantized model: the golden rows cannot be folded, so
+    // the golden blob would be copied plainly).
+    let mut float = common::random_model(Variant::Force, 8, true, 5);
+    float.config.hand_rule = Some(rule());
+    let (q, _) = slipguard_core::quantize::quantize(&float, &[], None).unwrap();
+    assert_eq!(u16::from_le_bytes([q[4], q[5]]), 2);
+    let q = AlignedBlob::new(&q);
+    let mut ram = slipguard_core::model_ram::ModelRam::<8192>::new();
+    let image = ram.load(q.as_bytes()).unwrap();
+    assert_eq!(&image[..4], b"SGMI", "a RAM image, not the plain copy");
+    assert_eq!(
+        ModelBlob::parse(image).unwrap().config.hand_rule,
+        Some(rule())
+    );
+}
+
+fn patched_v2(f: impl FnOnce(&mut Vec<u8>)) -> Result<(), BlobError> {
+    let (config, tensors) = small_v2();
+    let mut b = write_blob(&config, &tensors);
+    f(&mut b);
+    recrc(&mut b);
+    parse(&b)
+}
+
+#[test]
+fn a_bad_hand_rule_record_has_its_own_error() {
+    assert_eq!(patched_v2(|_| ()), Ok(()));
+    let entry = HEADER_LEN + 5 * 16;
+    let at = |b: &[u8], k: usize| {
+        u32::from_le_bytes(b[entry + 8..entry + 12].try_into().unwrap()) as usize + 4 * k
+    };
+    let set = |k: usize, v: i32| {
+        move |b: &mut Vec<u8>| {
+            let o = at(b, k);
+            b[o..o + 4].copy_from_slice(&v.to_le_bytes());
+        }
+    };
+    // Fractions 0..=32 767, window 1..=64: the edges pass, one past them is refused.
+    for (k, ok, bad) in [
+        (0, [0, 32_767], [-1, 32_768]),
+        (1, [0, 32_767], [-1, 32_768]),
+        (2, [1, 64], [0, 65]),
+    ] {
+        for v in ok {
+            assert_eq!(patched_v2(set(k, v)), Ok(()), "field {k} = {v}");
+        }
+        for v in bad {
+            assert_eq!(
+                patched_v2(set(k, v)),
+                Err(BlobError::BadHandRule),
+                "field {k} = {v}"
+            );
+        }
+    }
+    assert_eq!(patched_v2(set(2, i32::MIN)), Err(BlobError::BadHandRule));
+    // Shape: two rows, or i8 elements.
+    assert_eq!(
+        patched_v2(|b| b[entry + 4] = 2),
+        Err(BlobError::TensorShape(TensorKind::HandRule))
+    );
+    assert_eq!(
+        patched_v2(|b| b[entry + 2] = 1),
+        Err(BlobError::TensorShape(TensorKind::HandRule))
+    );
+    // Listed twice, or in a v1 blob.
+    assert_eq!(
+        patched_v2(|b| b[entry - 16] = 6),
+        Err(BlobError::DuplicateTensor(TensorKind::HandRule))
+    );
+    assert_eq!(patched_v2(|b| b[4] = 1), Err(BlobError::UnknownTensor));
+    // A v2 blob whose count leaves the record out.
+    assert_eq!(
+        patched_v2(|b| b[48] = 5),
+        Err(BlobError::MissingTensor(TensorKind::HandRule))
+    );
+    // The writer's check names the same error.
+    let mut r = rule();
+    r.strict.window = 0;
+    assert_eq!(
+        slipguard_core::blob::hand_rule_record(&r),
+        Err(BlobError::BadHandRule)
+    );
+    assert_eq!(
+        slipguard_core::blob::hand_rule_record(&rule()),
+        Ok([13_107, 26_214, 10])
+    );
+    assert!(
+        BlobError::BadHandRule
+            .to_string()
+            .contains("hand-rule record")
     );
 }

@@ -130,6 +130,7 @@ fn blob_errors_keep_their_wire_detail_codes() {
             (17, 1),
         ),
         (BlobError::QuantParam(TensorKind::FeatureNorm), (18, 1)),
+        (BlobError::BadHandRule, (19, 0)),
     ];
     for (e, want) in cases {
         assert_eq!(e.wire_detail(), want, "{e:?}");

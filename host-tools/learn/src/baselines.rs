@@ -237,6 +237,7 @@ pub fn feature_config(full_scale_mn: i32, rate_hz: f32) -> ModelConfig {
         threshold_q15: 16_384,
         raise_after: 1,
         clear_after: 1,
+        hand_rule: None,
     }
 }
 

@@ -168,6 +168,7 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> Result<ModelConfig>
         threshold_q15: Q15::from_f64(thr).header_threshold(),
         raise_after: small(keys::RAISE_AFTER)?,
         clear_after: small(keys::CLEAR_AFTER)?,
+        hand_rule: None,
     })
 }
 

@@ -145,6 +145,7 @@ fn base_config(
         threshold_q15: 16_384,
         raise_after: 1,
         clear_after: 1,
+        hand_rule: None,
     }
 }
 

@@ -276,18 +276,9 @@ pub fn pick_fused(pairs: &[(&LoadRun, &[bool])]) -> Option<FusedHand> {
     best.map(|b| b.2)
 }
 
-/// One line naming a fused decision.
+/// One line naming a fused decision (its `Display`).
 pub fn fused_name(f: &FusedHand) -> String {
-    let guard = if f.guard_q15 == FusedHand::NO_GUARD {
-        "any load".to_string()
-    } else {
-        format!("load < {:.2}·peak", Q15(f.guard_q15).to_f64())
-    };
-    format!(
-        "rule < {:.2}·peak OR (model flag AND {guard}), peak over {} frames",
-        fraction(&f.strict),
-        f.strict.window
-    )
+    f.to_string()
 }
 
 #[cfg(test)]

@@ -1,13 +1,17 @@
 //! The bit-exact core over a whole trial as the firmware runs it: every channel through
 //! contact detection and, while in contact, the model (`Model::step_in_contact`), and the
-//! hand-level decision over the channels (`HandConfig`), from the grasp start (the firmware
-//! resets at the controller's grasp-start command) to the end of the trial. Then the grasp's
-//! armed window for [`crate::armed`].
+//! hand-level decision over the channels (`HandConfig`), fused with the blob's hand rule when
+//! it carries one (format v2, `FusedHand`, as `slipguard_app::app` runs it), from the grasp
+//! start (the firmware resets at the controller's grasp-start command) to the end of the
+//! trial. Then the grasp's armed window for [`crate::armed`].
 
 use rayon::prelude::*;
 use slipguard_core::batch::BatchModel;
-use slipguard_core::decision::{ContactConfig, ContactEdge, DecisionState, HandConfig};
+use slipguard_core::decision::{
+    ContactConfig, ContactEdge, DecisionState, FusedHand, HandConfig, LoadRule, LoadRuleState,
+};
 use slipguard_core::model::{ChannelState, GatedOutput, Model};
+use slipguard_core::sample::InputScale;
 
 use slipguard_data::armed::ArmedGrasp;
 use slipguard_data::labels::{LabelConfig, detect_release};
@@ -20,8 +24,16 @@ pub struct HandRun {
     pub start: usize,
     /// Per step: the hand's p(unstable), Q0.15.
     pub hand_p: Vec<i16>,
-    /// Per step: the hand flag.
+    /// Per step: the hand flag the firmware sends: [`Self::model_flag`], fused with the blob's
+    /// hand rule when it has one ([`Self::rule`]).
     pub hand_flag: Vec<bool>,
+    /// Per step: the model's own hand flag (the hand p through threshold and hysteresis).
+    pub model_flag: Vec<bool>,
+    /// Per step: the hand load Σ |x| (Q1.15) of the channels in contact
+    /// ([`LoadRule::hand_load`]), the rule's input.
+    pub hand_load: Vec<i32>,
+    /// The blob's hand rule (format v2), fused into [`Self::hand_flag`]; `None` for a v1 blob.
+    pub rule: Option<FusedHand>,
     /// Per channel and step: p(unstable) while in contact, else `None`.
     pub channel_p: Vec<Vec<Option<i16>>>,
     /// Per channel and step: the channel's own flag (down without contact).
@@ -37,15 +49,60 @@ impl HandRun {
     }
 
     /// The hand flag for other decision settings, from the stored hand p (the hand's p does
-    /// not depend on threshold or hysteresis): what an operating-curve sweep needs.
+    /// not depend on threshold or hysteresis) and, with a rule, the stored hand load: what an
+    /// operating-curve sweep needs.
     pub fn hand_flag_with(&self, hand: &HandConfig) -> Vec<bool> {
         let mut s = DecisionState::default();
+        let mut fuse = Fuse::new(self.rule);
         self.hand_p
             .iter()
+            .zip(&self.hand_load)
             .enumerate()
-            .map(|(t, &p)| t >= self.start && hand.decision.update(&mut s, p))
+            .map(|(t, (&p, &load))| {
+                t >= self.start && fuse.update(hand.decision.update(&mut s, p), load)
+            })
             .collect()
     }
+
+    /// Stores one step's hand decision: the model's flag, the load and the fused flag.
+    fn record(&mut self, t: usize, model_flag: bool, load: i32, fuse: &mut Fuse) {
+        self.model_flag[t] = model_flag;
+        self.hand_load[t] = load;
+        self.hand_flag[t] = fuse.update(model_flag, load);
+    }
+}
+
+/// The firmware's fusion of the hand flag with the blob's rule (`slipguard_app::app`): the
+/// model's flag as it is without a rule.
+struct Fuse {
+    rule: Option<FusedHand>,
+    state: LoadRuleState,
+}
+
+impl Fuse {
+    fn new(rule: Option<FusedHand>) -> Self {
+        Self {
+            rule,
+            state: LoadRuleState::new(),
+        }
+    }
+
+    fn update(&mut self, model_flag: bool, load: i32) -> bool {
+        match &self.rule {
+            Some(r) => r.update(&mut self.state, model_flag, load),
+            None => model_flag,
+        }
+    }
+}
+
+/// The hand load of one step: Σ |x| (Q1.15 in the model's scale) of the channels in contact,
+/// from the raw samples the model stepped on.
+fn step_load(scale: &InputScale, raw: &[i32], in_contact: impl Fn(usize) -> bool) -> i32 {
+    LoadRule::hand_load(
+        raw.iter()
+            .enumerate()
+            .map(|(c, &r)| in_contact(c).then(|| scale.to_q15(r))),
+    )
 }
 
 /// Runs `model` over every channel of `trial` from its grasp start (step 0 without a mark).
@@ -67,13 +124,16 @@ pub fn run_trial(
 }
 
 /// A run with no step yet: `start` and the buffers of `trial`'s length and channels.
-fn empty_run(trial: &Trial) -> HandRun {
+fn empty_run(trial: &Trial, rule: Option<FusedHand>) -> HandRun {
     let n = trial.n_steps();
     let nc = trial.n_channels();
     HandRun {
         start: trial.marks.grasp_start.unwrap_or(0).min(n),
         hand_p: vec![0; n],
         hand_flag: vec![false; n],
+        model_flag: vec![false; n],
+        hand_load: vec![0; n],
+        rule,
         channel_p: vec![vec![None; n]; nc],
         channel_flag: vec![vec![false; n]; nc],
     }
@@ -86,7 +146,10 @@ pub fn run_trial_batched(
     contact: &ContactConfig,
     hand: &HandConfig,
 ) -> HandRun {
-    let mut run = empty_run(trial);
+    let model = batch.model();
+    let mut run = empty_run(trial, model.config().hand_rule);
+    let mut fuse = Fuse::new(run.rule);
+    let scale = *model.scale();
     let nc = trial.n_channels();
     let mut states = batch.state(nc);
     let mut hand_state = DecisionState::default();
@@ -109,7 +172,8 @@ pub fn run_trial_batched(
             out.iter().map(|o| o.step.map(|s| s.p_unstable_q15)),
         );
         run.hand_p[t] = h.p_unstable_q15;
-        run.hand_flag[t] = h.unstable;
+        let load = step_load(&scale, &raw, |c| out[c].step.is_some());
+        run.record(t, h.unstable, load, &mut fuse);
     }
     run
 }
@@ -122,22 +186,25 @@ pub fn run_trial_single(
     contact: &ContactConfig,
     hand: &HandConfig,
 ) -> HandRun {
-    let mut run = empty_run(trial);
+    let mut run = empty_run(trial, model.config().hand_rule);
+    let mut fuse = Fuse::new(run.rule);
     let nc = trial.n_channels();
     let mut states = vec![ChannelState::new(); nc];
     let mut hand_state = DecisionState::default();
     let mut p_now = vec![None; nc];
+    let mut raw = vec![0i32; nc];
     for t in run.start..trial.n_steps() {
         for c in 0..nc {
-            let raw = trial.samples[c][t].round() as i32;
-            let out = model.step_in_contact(&mut states[c], contact, raw);
+            raw[c] = trial.samples[c][t].round() as i32;
+            let out = model.step_in_contact(&mut states[c], contact, raw[c]);
             p_now[c] = out.step.map(|s| s.p_unstable_q15);
             run.channel_p[c][t] = p_now[c];
             run.channel_flag[c][t] = out.step.is_some_and(|s| s.unstable);
         }
         let h = hand.update(&mut hand_state, p_now.iter().copied());
         run.hand_p[t] = h.p_unstable_q15;
-        run.hand_flag[t] = h.unstable;
+        let load = step_load(model.scale(), &raw, |c| p_now[c].is_some());
+        run.record(t, h.unstable, load, &mut fuse);
     }
     run
 }

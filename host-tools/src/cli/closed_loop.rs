@@ -77,7 +77,8 @@ pub struct Args {
     pub rule_window_ms: u32,
     /// Also run every model fused with the rule: the rule OR the model's hand flag while the
     /// hand load is below this fraction of its peak (0 < g ≤ 1; host-side fusion of the
-    /// firmware's flags, `slipguard_core::decision::FusedHand`).
+    /// firmware's flags, `slipguard_core::decision::FusedHand`; not for a blob that carries
+    /// its own hand rule, whose flags the firmware already fuses).
     #[arg(long, value_parser = check::unit)]
     pub fused_guard: Option<f64>,
     /// Leave the hand-load rule out.
@@ -194,17 +195,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 });
             }
         }
+        let file = m.file_name().map_or(m.display().to_string(), |s| {
+            s.to_string_lossy().into_owned()
+        });
+        // A blob with a hand rule (format v2): the firmware's hand flag is already fused.
+        let hand_rule = cfg.as_ref().and_then(|c| c.hand_rule);
         sources.push(Source {
-            name: m.file_name().map_or(m.display().to_string(), |s| {
-                s.to_string_lossy().into_owned()
-            }),
+            name: match &hand_rule {
+                Some(r) => format!("{file} (fused in the firmware: {r})"),
+                None => file,
+            },
             blob: Some(blob.clone()),
             oracle: None,
             rate_mhz,
             rule: None,
             fused: None,
         });
-        if let (Some(g), Some(c)) = (a.fused_guard, cfg.as_ref()) {
+        if let (Some(g), Some(c), None) = (a.fused_guard, cfg.as_ref(), hand_rule) {
             let f = slipguard_learn::load_rule::fused(
                 a.rule_fraction,
                 g,

@@ -142,9 +142,9 @@ fn seed_run(
                 {
                     model.push(sc.hand);
                 }
-                test.push((l, w.run.hand_flag.as_slice()));
+                test.push((l, w.run.model_flag.as_slice()));
             } else {
-                pairs.push((l, w.run.hand_flag.as_slice()));
+                pairs.push((l, w.run.model_flag.as_slice()));
             }
         }
         // The fold's own rule (picked on its training trials) with the fixed guard.

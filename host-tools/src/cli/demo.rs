@@ -94,7 +94,8 @@ impl Shipped {
     }
 }
 
-/// One line about a model: sensor, rate, variant, size, decision.
+/// One line about a model: sensor, rate, variant, size, decision (and the blob's hand rule, when
+/// it carries one: format v2).
 fn describe(c: &ModelConfig) -> String {
     let sensor = slipguard::plot::sensor_name(c.input_unit);
     let hidden = if c.hidden[1] > 0 {
@@ -102,8 +103,12 @@ fn describe(c: &ModelConfig) -> String {
     } else {
         c.hidden[0].to_string()
     };
+    let fused = c.hand_rule.map_or(String::new(), |r| {
+        format!("; hand flag fused with the blob's hand-load rule: {r}")
+    });
     format!(
-        "{sensor}, {} Hz, variant {}, hidden {hidden}; flags at p(unstable) ≥ {:.2} for {} step(s)",
+        "{sensor}, {} Hz, variant {}, hidden {hidden}; flags at p(unstable) ≥ {:.2} for {} \
+         step(s){fused}",
         c.sample_rate_mhz as f64 / 1000.0,
         c.variant,
         c.threshold_q15 as f64 / 32768.0,
@@ -364,6 +369,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             counts.skipped.join(", ")
         }
     );
+    if let Some(r) = &hand_cfg.hand_rule {
+        println!(
+            "   hand (fused): this blob carries a hand rule (format v2), so its hand flag is the \
+             model's hand decision fused with the hand-load rule, as the firmware computes it: \
+             {r}. The `load rule` row is the rule alone (fraction and window picked leave one \
+             trial out). These rows are in-sample for the model; held out, the model alone does \
+             not beat the rule and the fused flag matches the rule's detections and false alarms \
+             with a longer median lead (docs/results.md)."
+        );
+    }
     println!(
         "   The {} grasps have {} contact channels: the `channel` row scores each one's own flag.\n",
         counts.grasps, counts.channels

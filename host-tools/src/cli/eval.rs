@@ -91,7 +91,7 @@ fn load_member(p: &Path, allow_bad: bool) -> anyhow::Result<(Checkpoint, Option<
             p.display()
         );
     }
-    let ck = checkpoint::read(&ck_path)?;
+    let mut ck = checkpoint::read(&ck_path)?;
     let bin = ck_path.with_extension("bin");
     let blob = if bin.exists() {
         let b = std::fs::read(&bin).with_context(|| format!("reading {}", bin.display()))?;
@@ -103,7 +103,12 @@ fn load_member(p: &Path, allow_bad: bool) -> anyhow::Result<(Checkpoint, Option<
             &profile,
             slipguard_core::blob::AlignedBlob::new(&b).as_bytes(),
         ) {
-            Ok(_) => Some(b),
+            Ok(c) => {
+                // The blob's hand rule (format v2, set at export): kept when the checkpoint is
+                // quantized afresh with another decision rule (`--threshold` …).
+                ck.model.config.hand_rule = c.hand_rule;
+                Some(b)
+            }
             Err(why) if allow_bad => {
                 eprintln!(
                     "eval: warning: {}: {why}; evaluating the checkpoint quantized afresh \
@@ -505,6 +510,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         text.push_str(ARMED_NOTE);
         text.push_str(RULE_NOTE);
         for p in &products {
+            if let Some(f) = &p.hand_rule {
+                text.push_str(&format!("\n\n{}", fused_note(&p.name, f)));
+            }
+        }
+        for p in &products {
             if let Some(r) = &p.rule {
                 text.push_str(&format!(
                     "\n\n{}: load rule picked {}: {}.",
@@ -662,6 +672,28 @@ pub struct Product {
     pub paper_ahead_ci: Option<slipguard_data::armed::Interval>,
     /// The hand-load rule on the same trials, its parameters picked on training trials only.
     pub rule: Option<RuleEval>,
+    /// The blob's own hand rule (format v2): the hand row is then the fused hand flag, as the
+    /// firmware computes it.
+    pub hand_rule: Option<slipguard_core::decision::FusedHand>,
+}
+
+/// The level label of a product's hand row: "hand", or "hand (fused)" for a blob with a rule.
+fn hand_level(p: &Product) -> &'static str {
+    if p.hand_rule.is_some() {
+        "hand (fused)"
+    } else {
+        "hand"
+    }
+}
+
+/// What a fused hand row means.
+fn fused_note(name: &str, f: &slipguard_core::decision::FusedHand) -> String {
+    format!(
+        "{name}: hand (fused) = the hand flag as the firmware computes it from this blob, its \
+         hand decision fused with the blob's hand rule (format v2): {f}. The rule's parameters \
+         are the blob's (set at export; eval picks nothing): chosen on these trials, they make \
+         this row in-sample for them."
+    )
 }
 
 /// The hand-load rule beside a model: held out as the model is.
@@ -832,6 +864,8 @@ fn product_eval(
         let c = &ck.model.config;
         CurvePoint::of(Q15(c.threshold_q15 as i16).to_f64(), c.raise_after, &hand)
     });
+    // The blob's rule (format v2) is in every run of its members (`HandRun::rule`).
+    let hand_rule = curve_runs.iter().find_map(|(w, _)| w.run.rule);
     Ok(Product {
         name: g.name.clone(),
         in_sample: !cv,
@@ -842,6 +876,7 @@ fn product_eval(
         paper_success_ci: product::bootstrap_paper(&seqs, &preds, 5, |m| m.success_rate),
         paper_ahead_ci: product::bootstrap_paper(&seqs, &preds, 6, |m| m.ahead_drop_rate),
         rule,
+        hand_rule,
     })
 }
 
@@ -872,7 +907,7 @@ fn armed_row(p: &Product) -> String {
     };
     let mut rows = format!(
         "{}\n{}",
-        armed_line(&p.name, data, "hand", &p.hand),
+        armed_line(&p.name, data, hand_level(p), &p.hand),
         armed_line(&p.name, data, "channel", &p.channel)
     );
     if let Some(r) = &p.rule {
@@ -938,6 +973,20 @@ fn product_json(p: &Product, paper: Option<&Row>) -> serde_json::Value {
         );
     }
     o.extend(p.hand.to_json("armed"));
+    // "hand" or "hand (fused)": what the armed.* figures score (outside armed.*, whose keys
+    // the baseline repeats).
+    o.insert("hand_level".into(), json!(hand_level(p)));
+    if let Some(f) = &p.hand_rule {
+        o.insert(
+            "hand_rule".into(),
+            json!({
+                "description": f.to_string(),
+                "strict_q15": f.strict.fraction_q15,
+                "guard_q15": f.guard_q15,
+                "window_frames": f.strict.window,
+            }),
+        );
+    }
     o.extend(p.channel.to_json("armed_channel"));
     if let Some(r) = &p.rule {
         o.extend(r.report.to_json("baseline.load_rule.armed"));
@@ -1009,6 +1058,7 @@ pub fn armed_rows_for_blob(
     let (refs, _skipped) = product::scoreable(&refs, &cfg)?;
     let kept: Vec<Trial> = refs.iter().map(|&t| t.clone()).collect();
     let (mut hand, mut channel) = (Vec::new(), Vec::new());
+    let hand_rule = m.config().hand_rule;
     for w in product::windowed_runs(&m, &refs, &cfg)? {
         if let Some(t) = trials.iter().find(|t| t.id == w.trial)
             && let Some(sc) = product::score(t, &w.run, &cfg)?
@@ -1027,6 +1077,7 @@ pub fn armed_rows_for_blob(
         paper_success_ci: None,
         paper_ahead_ci: None,
         rule: Some(rule_eval(&kept, m.config(), None)?),
+        hand_rule,
     };
     Ok(armed_row(&p))
 }
@@ -1064,6 +1115,7 @@ mod tests {
             shipped: None,
             paper_success_ci: None,
             paper_ahead_ci: None,
+            hand_rule: None,
             rule: Some(RuleEval {
                 how: "leave one trial out".into(),
                 picks: String::new(),
@@ -1111,5 +1163,34 @@ mod tests {
                 .unwrap()
                 .starts_with("| load rule beside m |")
         );
+        assert!(rows.starts_with("| m | real held-out | hand |"), "{rows}");
+        assert_eq!(o["hand_level"], "hand");
+        assert!(!o.contains_key("hand_rule"));
+
+        // A blob with a hand rule: the hand row says it is the fused flag, the JSON carries the
+        // rule, and the baseline row stays.
+        let f = slipguard_core::decision::FusedHand {
+            strict: slipguard_core::decision::LoadRule {
+                fraction_q15: 13_107,
+                window: 10,
+            },
+            guard_q15: 26_214,
+        };
+        let fused = Product {
+            hand_rule: Some(f),
+            ..p
+        };
+        let rows = armed_row(&fused);
+        assert!(
+            rows.starts_with("| m | real held-out | hand (fused) |"),
+            "{rows}"
+        );
+        assert!(rows.contains("| load rule beside m |"));
+        let v = product_json(&fused, None);
+        assert_eq!(v["hand_level"], "hand (fused)");
+        assert_eq!(v["hand_rule"]["window_frames"], 10);
+        assert_eq!(v["hand_rule"]["guard_q15"], 26_214);
+        assert!(v.get("baseline.load_rule.armed.detected").is_some());
+        assert!(fused_note("m", &f).contains("rule < 0.40·peak"));
     }
 }

@@ -403,6 +403,23 @@ fn run_one(
         n_faults,
         out.wire.len()
     ));
+    // A blob with a hand rule (format v2): the frames' hand flag is the fused one.
+    if let Some(rule) = slipguard_core::blob::ModelBlob::parse(blob.as_bytes())
+        .ok()
+        .and_then(|b| b.config.hand_rule)
+    {
+        let (up, by_rule) = frames
+            .iter()
+            .filter_map(|f| match f.msg {
+                Message::Flags(x) => Some((x.hand_unstable(), x.hand_by_rule())),
+                _ => None,
+            })
+            .fold((0, 0), |(u, r), (h, b)| (u + h as usize, r + b as usize));
+        log.line(format!(
+            "replay: hand flag fused with the blob's hand rule ({rule}): up in {up} flag frames, \
+             {by_rule} of them by the rule alone (status HAND_BY_RULE)"
+        ));
+    }
     match out_path {
         Some(p) if p == Path::new("-") => std::io::stdout().write_all(&out.wire)?,
         Some(p) => {

@@ -28,6 +28,7 @@ pub fn config(variant: Variant, hidden: u16, force_diff: bool) -> ModelConfig {
         threshold_q15: 16_384,
         raise_after: 1,
         clear_after: 1,
+        hand_rule: None,
     }
 }
 
