@@ -78,6 +78,18 @@ impl Rng {
         self.0 = x;
         x
     }
+
+    /// One i16 input of a check's `pattern`: 0 random, 1 all `i16::MIN`, else `i16::MIN` or
+    /// `i16::MAX` by the random word's `bit` (the extremes the kernels' saturation must take).
+    fn i16_pattern(&mut self, pattern: u32, bit: u32) -> i16 {
+        let r = self.next();
+        match pattern {
+            0 => r as i16,
+            1 => i16::MIN,
+            _ if r & bit == 0 => i16::MIN,
+            _ => i16::MAX,
+        }
+    }
 }
 
 /// Longest vector the kernel checks cover (every length 0..=MAX_N, odd ones included).
@@ -307,18 +319,7 @@ fn check_block_kernel() {
                 }
                 let mut v = [0i16; 4 * (MAX_BLOCK_X_CHUNKS + MAX_BLOCK_H_CHUNKS)];
                 for x in v[..stride].iter_mut() {
-                    let r = rng.next();
-                    *x = match pattern {
-                        0 => r as i16,
-                        1 => i16::MIN,
-                        _ => {
-                            if r & 4 == 0 {
-                                i16::MIN
-                            } else {
-                                i16::MAX
-                            }
-                        }
-                    };
+                    *x = rng.i16_pattern(pattern, 4);
                 }
                 let (xv, hv) = v[..stride].split_at(hh);
                 let natural = |v: &[i16], out: &mut [u32]| {
@@ -562,18 +563,7 @@ fn check_stft_rows() {
     for pattern in 0..3u32 {
         for n in 0..=48usize {
             for v in x.iter_mut() {
-                let r = rng.next();
-                *v = match pattern {
-                    0 => r as i16,
-                    1 => i16::MIN,
-                    _ => {
-                        if r & 1 == 0 {
-                            i16::MIN
-                        } else {
-                            i16::MAX
-                        }
-                    }
-                };
+                *v = rng.i16_pattern(pattern, 1);
             }
             for w in rows.iter_mut() {
                 let r = rng.next();
@@ -636,18 +626,7 @@ fn check_dense_kernel() {
                 };
             }
             for x in v.0.iter_mut() {
-                let r = rng.next();
-                *x = match pattern {
-                    0 => r as i16,
-                    1 => i16::MIN,
-                    _ => {
-                        if r & 1 == 0 {
-                            i16::MIN
-                        } else {
-                            i16::MAX
-                        }
-                    }
-                };
+                *x = rng.i16_pattern(pattern, 1);
             }
             for (wo, vo) in [(0, 0), (1, 0), (0, 1)] {
                 let (ws, vs) = (&w.0[wo..wo + n], &v.0[vo..vo + n]);
