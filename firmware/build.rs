@@ -43,16 +43,16 @@ fn check_model_profile() {
     ) else {
         return;
     };
-    let rate_mhz: u32 = rate.parse().unwrap_or(0);
+    let rate_mhz = slipguard_core::units::Millihertz(rate.parse().unwrap_or(0));
     let why = if !profile.check_rate(rate_mhz) {
         let rates: Vec<String> = profile
             .rates_mhz
             .iter()
-            .map(|r| format!("{}", *r as f64 / 1000.0))
+            .map(|r| format!("{}", r.hz()))
             .collect();
         Some(format!(
             "the model runs at {} Hz, the {} profile at {} Hz",
-            rate_mhz as f64 / 1000.0,
+            rate_mhz.hz(),
             profile.name,
             rates.join(" or ")
         ))

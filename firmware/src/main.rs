@@ -32,12 +32,13 @@ use embassy_sync::channel::Channel;
 use embassy_time::{Duration, Instant, Timer, with_timeout};
 use slipguard_app::app::App;
 use slipguard_app::frontend::{FrameInput, Frontend, SCANS_PER_FRAME};
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::{AdcCode, Profile};
 use slipguard_app::replay;
 use slipguard_app::schedule::Deadline;
 use slipguard_app::upload::{self, FlashError, Uploader};
 use slipguard_core::model_ram::ModelRam;
 use slipguard_core::protocol::{Deframer, Frame, MAX_WIRE};
+use slipguard_core::units::Millihertz;
 use slipguard_support::boot::ModelLine;
 use static_cell::{ConstStaticCell, StaticCell};
 use {defmt_rtt as _, panic_probe as _};
@@ -194,10 +195,10 @@ fn clock_config() -> embassy_stm32::Config {
 }
 
 /// TIM2 (32-bit) update events at `rate × 16` per second drive the ADC scans (TRGO = update).
-fn start_scan_timer(tim: Peri<'static, TIM2>, rate_mhz: u32) -> LlTimer<'static, TIM2> {
+fn start_scan_timer(tim: Peri<'static, TIM2>, rate_mhz: Millihertz) -> LlTimer<'static, TIM2> {
     let t = LlTimer::new(tim);
     let clk = t.get_clock_frequency().0 as u64;
-    let scan_mhz = PROFILE.scan_rate_mhz(rate_mhz).max(1) as u64;
+    let scan_mhz = PROFILE.scan_rate_mhz(rate_mhz).0.max(1) as u64;
     // Period in timer ticks, rounded: 84 MHz / 267.2 Hz = 314 371 (error < 2 ppm).
     let ticks = ((clk * 1000 + scan_mhz / 2) / scan_mhz).clamp(2, u32::MAX as u64) as u32;
     let r = t.regs_gp32();
@@ -224,7 +225,7 @@ async fn adc_task(mut rb: RingBufferedAdc<'static, ADC1>, mut frontend: Frontend
     rb.start();
     loop {
         match rb.read(&mut half).await {
-            Ok(_) => frontend.push_block(&half, |input| {
+            Ok(_) => frontend.push_block(AdcCode::from_dma(&half), |input| {
                 let ev = Event::Frame(input, Instant::now().as_micros());
                 if EVENTS.try_send(ev).is_err() {
                     SKIPPED.fetch_add(1, Ordering::Relaxed);
@@ -422,7 +423,7 @@ async fn main(spawner: Spawner) {
     let mut skipped_seen = 0u32;
     let mut last_fault = 0u16;
     let (mut cyc_min, mut cyc_max, mut cyc_sum, mut cyc_n) = (u32::MAX, 0u32, 0u64, 0u32);
-    let report_every = (rate_mhz / 100).max(1); // every 10 s
+    let report_every = (rate_mhz.0 / 100).max(1); // every 10 s
     loop {
         let ev = match with_timeout(stall_after, EVENTS.receive()).await {
             Ok(ev) => ev,
@@ -512,7 +513,7 @@ async fn main(spawner: Spawner) {
                     // `cycles:` line): cycles per frame and per channel step, and the CPU share
                     // at this model rate (frames at rate_mhz / 1000 Hz on a `sysclk` core).
                     let mean = cyc_sum / cyc_n as u64;
-                    let share_permille = mean * rate_mhz as u64 / (sysclk as u64).max(1);
+                    let share_permille = mean * rate_mhz.0 as u64 / (sysclk as u64).max(1);
                     info!(
                         "inference cycles per frame ({} ch): min {} mean {} max {} ({} frames), {} per channel step, CPU {}.{} % at {} mHz; overruns {}, skipped {}",
                         CHANNELS,
@@ -523,7 +524,7 @@ async fn main(spawner: Spawner) {
                         mean / CHANNELS as u64,
                         share_permille / 10,
                         share_permille % 10,
-                        rate_mhz,
+                        rate_mhz.0,
                         app.overruns(),
                         app.skipped()
                     );

@@ -106,7 +106,7 @@ fn check_blob(bytes: &[u8]) -> Result<(u32, String), String> {
     let model = slipguard_core::model::Model::from_bytes(aligned)
         .map_err(|e| format!("not a valid model blob: {e}"))?;
     let c = model.config();
-    Ok((c.sample_rate_mhz, c.input_unit.to_string()))
+    Ok((c.sample_rate_mhz.0, c.input_unit.to_string()))
 }
 
 /// Stops the build with one line (no panic backtrace).

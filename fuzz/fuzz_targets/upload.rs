@@ -8,6 +8,7 @@
 //! numbers (the wrap after `u32::MAX` included).
 #![no_main]
 
+use slipguard_core::units::Millihertz;
 use libfuzzer_sys::fuzz_target;
 use std::sync::OnceLock;
 
@@ -41,7 +42,7 @@ fn blobs() -> &'static Blobs {
         let base = *Model::from_bytes(golden.as_bytes())
             .expect("golden")
             .config();
-        let make = |rate: u32, unit: InputUnit, seed: u64| {
+        let make = |rate: Millihertz, unit: InputUnit, seed: u64| {
             let mut c = base;
             c.hidden = [8, if c.hidden[1] > 0 { 8 } else { 0 }];
             c.sample_rate_mhz = rate;
@@ -51,7 +52,7 @@ fn blobs() -> &'static Blobs {
             bytes
         };
         let a = make(base.sample_rate_mhz, InputUnit::MilliNewton, 1);
-        let b = make(40_000, InputUnit::MilliNewton, 2);
+        let b = make(Millihertz(40_000), InputUnit::MilliNewton, 2);
         let counts = make(base.sample_rate_mhz, InputUnit::Counts, 3);
         let mut ram = Box::new(ModelRam::<RAM>::new());
         let image = ram

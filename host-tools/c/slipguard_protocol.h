@@ -87,6 +87,10 @@ extern "C" {
 #define SG_STATUS_BAD_ARGUMENT 1u
 #define SG_STATUS_NO_MODEL 2u
 
+/* Sensor profiles (info reply `profile`): slipguard_app::profile::ProfileId. */
+#define SG_PROFILE_HAND 0u /* 16 channels, mN, 16.7 Hz or 40 Hz */
+#define SG_PROFILE_SUCTION 1u /* 4 channels, counts, 71 Hz */
+
 /* Upload reply codes (docs/protocol.md says what to fix for each). */
 #define SG_UP_OK 0u /* Accepted. */
 #define SG_UP_NOT_STARTED 1u /* Chunk or commit without an upload in progress: send upload begin. */
@@ -160,7 +164,7 @@ typedef struct {
 
 typedef struct {
     uint8_t firmware[3];
-    uint8_t profile; /* 0 hand, 1 suction */
+    uint8_t profile; /* SG_PROFILE_* */
     uint8_t channels;
     uint8_t oversample;
     uint8_t model_ok;
@@ -339,7 +343,7 @@ static inline uint32_t sg_u32(const uint8_t *b) {
 #define SG_R_SET_THRESHOLD_LEN 4u
 #define SG_R_INFO_AT_VERSION 0u /* U8: protocol version (1) */
 #define SG_R_INFO_AT_FIRMWARE 1u /* Bytes(3): firmware version: major, minor, patch */
-#define SG_R_INFO_AT_PROFILE 4u /* U8: sensor profile: 0 hand, 1 suction */
+#define SG_R_INFO_AT_PROFILE 4u /* U8: sensor profile id (SG_PROFILE_*: slipguard_app::profile::ProfileId) */
 #define SG_R_INFO_AT_CHANNELS 5u /* U8: N, channels in flag frames */
 #define SG_R_INFO_AT_OVERSAMPLE 6u /* U8: ADC samples per model sample */
 #define SG_R_INFO_AT_MODEL_OK 7u /* U8: 1 if the model blob is valid and running */

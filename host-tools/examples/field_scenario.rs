@@ -24,8 +24,8 @@ fn main() -> anyhow::Result<()> {
         |_, _| {},
     )?
     .remove(0);
-    let profile = replay::profile_for(&trial);
-    let rate_mhz = (trial.rate_hz * 1000.0).round() as u32;
+    let profile = replay::profile_for(&trial, recording)?;
+    let rate_mhz = trial.rate_mhz();
     let once = replay::trial_bytes(&trial, &profile);
     let steps = trial.n_steps().max(1);
     // At least twice (a grasp after the upload like the first), and 100 frames past the
@@ -47,7 +47,7 @@ fn main() -> anyhow::Result<()> {
     eprintln!(
         "field_scenario: {} profile at {} Hz, {steps} steps × {repeats}, {}-byte blob: {out} ({} bytes)",
         profile.name,
-        rate_mhz as f64 / 1000.0,
+        rate_mhz.hz(),
         blob.len(),
         file.len()
     );

@@ -9,6 +9,8 @@
 
 use std::fmt::Write as _;
 
+use slipguard_app::profile::ProfileId;
+
 use slipguard_core::protocol::{
     self, Body, CRC_LEN, Code, DecodeError, HEADER_LEN, MAX_CHANNELS, MAX_CHUNK, MAX_PAYLOAD,
     MAX_WIRE, MsgType, P_NONE, REPLY_HEAD, ReplyStatus, StreamMode, Tail, VERSION, fault_code,
@@ -124,6 +126,27 @@ fn constants() -> String {
         ("NO_MODEL", ReplyStatus::NoModel),
     ] {
         let _ = writeln!(o, "#define SG_STATUS_{name} {}u", s as u8);
+    }
+    let _ = writeln!(
+        o,
+        "\n/* Sensor profiles (info reply `profile`): slipguard_app::profile::ProfileId. */"
+    );
+    for id in ProfileId::ALL {
+        let p = id.profile();
+        let rates: Vec<String> = p
+            .rates_mhz
+            .iter()
+            .map(|r| format!("{} Hz", (*r).hz()))
+            .collect();
+        let _ = writeln!(
+            o,
+            "#define SG_PROFILE_{} {}u /* {} channels, {}, {} */",
+            upper(p.name),
+            id as u8,
+            p.channels,
+            p.unit,
+            rates.join(" or ")
+        );
     }
     codes(
         &mut o,

@@ -14,12 +14,13 @@
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use slipguard_core::units::Millihertz;
 
 use slipguard_app::MAX_CHANNELS;
 use slipguard_app::app::App;
 use slipguard_app::decimate::RATIO;
 use slipguard_app::frontend::Frontend;
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::{AdcCode, Profile};
 use slipguard_core::decision::Q15;
 use slipguard_core::protocol::{self, Command, Deframer, Frame, MAX_WIRE, Message, status};
 use slipguard_core::sample::PAPER_RATE_MHZ;
@@ -314,7 +315,7 @@ pub struct ControllerConfig {
     /// the joint currents by 5 and 10 mA from 25 and 50 mA: 20 %).
     pub step_fraction: f64,
     /// Frame rate (mHz): the model's.
-    pub rate_mhz: u32,
+    pub rate_mhz: Millihertz,
     /// Decision settings the controller sends with a set-threshold command right after grasp
     /// start (threshold Q0.15, raise after, clear after); `None` keeps the blob's.
     pub decision: Option<(u16, u8, u8)>,
@@ -396,14 +397,14 @@ pub struct Outcome {
 
 /// Force a pad reads (mN) → ADC code of the hand profile with the force simulator's noise
 /// (10 mN + 1 %) and ±1 LSB.
-fn code(profile: &Profile, mn: f64, rng: &mut ChaCha8Rng) -> u16 {
+fn code(profile: &Profile, mn: f64, rng: &mut ChaCha8Rng) -> AdcCode {
     let noisy = if mn > 1.0 {
         mn + normal(rng) * (10.0 + 0.01 * mn)
     } else {
         0.0
     };
-    let c = profile.to_counts(noisy.max(0.0).round() as i32) as i32 + rng.random_range(-1..=1);
-    c.clamp(0, profile.adc_max as i32) as u16
+    let c = profile.to_counts(noisy.max(0.0).round() as i32).0 as i64 + rng.random_range(-1..=1);
+    profile.clamp_code(c)
 }
 
 /// A flag frame of a detector that has only the hand flag (oracle, teacher, load rule): armed,
@@ -423,7 +424,8 @@ fn flags_frame(seq: u16, unstable: bool) -> Frame {
             fault: 0,
             overruns: 0,
             skipped: 0,
-            p: [0; 16],
+            p: [slipguard_core::protocol::PUnstable::from_q15(slipguard_core::decision::Q15(0));
+                16],
         }),
     }
 }
@@ -440,7 +442,7 @@ pub fn run_trial(
     let profile = Profile::HAND;
     let dt = 1.0 / INTERNAL_HZ;
     let ticks = (DURATION_S * INTERNAL_HZ).round() as usize;
-    let period_s = 1000.0 / ctl.rate_mhz as f64;
+    let period_s = 1000.0 / ctl.rate_mhz.0 as f64;
     let scan_dt = period_s / RATIO as f64;
     let mut rng = trial_rng(seed, 0xC0FF_EE00);
     // The teacher's coin has its own stream so that the sensor noise does not depend on it.
@@ -545,7 +547,7 @@ pub fn run_trial(
         // ADC scans due by now; a frame every RATIO scans.
         while next_scan <= t {
             next_scan += scan_dt;
-            let mut scan = [0u16; MAX_CHANNELS];
+            let mut scan = [AdcCode(0); MAX_CHANNELS];
             for (c, s) in scan.iter_mut().enumerate().take(profile.channels) {
                 *s = code(&profile, lag[c], &mut rng);
             }
@@ -796,7 +798,7 @@ const TRAINING_STREAM: u64 = 0x7EAC_0000;
 #[derive(Clone, Debug)]
 pub struct TrainingConfig {
     /// Frame rate of the model to train (mHz).
-    pub rate_mhz: u32,
+    pub rate_mhz: Millihertz,
     /// A frame is labelled unstable when the object is in incipient slip, gross slip or lost
     /// at any frame up to this far ahead (s): the controller needs the flag before the slip,
     /// since a slip reaches gross slip and the drop within a few frames.
@@ -843,7 +845,7 @@ impl Default for TrainingConfig {
 pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<Sequence> {
     use slipguard_data::labels::ChannelSequence;
     use slipguard_data::trial::{Outcome as TrialOutcome, Stability};
-    let period_s = 1000.0 / cfg.rate_mhz as f64;
+    let period_s = 1000.0 / cfg.rate_mhz.0 as f64;
     let lead = (cfg.lead_s / period_s).round() as usize;
     let mut out = Vec::new();
     for i in 0..count as u64 {
@@ -943,7 +945,7 @@ pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<
                     },
                 },
                 lift,
-                rate_hz: cfg.rate_mhz as f32 / 1000.0,
+                rate_hz: cfg.rate_mhz.0 as f32 / 1000.0,
             });
         }
     }

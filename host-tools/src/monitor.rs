@@ -19,15 +19,15 @@
 //! recording rather than filling it, and no recording grows past
 //! [`slipguard_data::recording::MAX_STEPS`] rows.
 
+use slipguard_core::units::Millihertz;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use slipguard_core::decision::Q15;
 use slipguard_core::protocol::{
-    Command, DecodeError, Deframer, Fault, Flags, Frame, Info, MAX_CHANNELS, Message, P_NONE,
-    ReplyBody, Samples, StreamMode, mark, status,
+    Command, DecodeError, Deframer, Fault, Flags, Frame, Info, MAX_CHANNELS, Message, ReplyBody,
+    Samples, StreamMode, mark, status,
 };
 use slipguard_core::sample::PAPER_RATE_MHZ;
 
@@ -35,15 +35,15 @@ use slipguard_data::recording::{self, Appender, MAX_RATE_HZ, MAX_STEPS, MIN_RATE
 use slipguard_data::trial::{Outcome, Phase, PhaseMarks, SensorKind, Stability, Trial, Unit};
 
 /// Whether a frame rate (mHz) from the wire is one a recording can state.
-pub fn rate_ok(rate_mhz: u32) -> bool {
-    let hz = rate_mhz as f64 / 1000.0;
+pub fn rate_ok(rate_mhz: Millihertz) -> bool {
+    let hz = rate_mhz.hz();
     (MIN_RATE_HZ as f64..=MAX_RATE_HZ as f64).contains(&hz)
 }
 
 /// Frame index of a frame timestamp: the firmware stamps frame `i` with
 /// `(i + 1) · 10⁹ / rate_mHz` µs (rounded down), so this rounds back to `i`.
-fn frame_index(t_us: u64, rate_mhz: u32) -> u64 {
-    ((t_us as f64 * rate_mhz as f64 / 1e9).round() as u64).saturating_sub(1)
+fn frame_index(t_us: u64, rate_mhz: Millihertz) -> u64 {
+    ((t_us as f64 * rate_mhz.0 as f64 / 1e9).round() as u64).saturating_sub(1)
 }
 
 /// Counters of a monitoring session.
@@ -261,7 +261,7 @@ impl Monitor {
 
     /// Frame rate in mHz: from an info reply, else the median spacing of consecutive flag
     /// frames' timestamps, else `None`.
-    pub fn rate_mhz(&self) -> Option<u32> {
+    pub fn rate_mhz(&self) -> Option<Millihertz> {
         if let Some(i) = self.info
             && rate_ok(i.sample_rate_mhz)
         {
@@ -280,7 +280,7 @@ impl Monitor {
         let period_us = d[d.len() / 2] as f64;
         // Timestamps are rounded down to whole µs: round the rate to 10 mHz.
         let r = ((1e9 / period_us) / 10.0).round() as u32 * 10;
-        rate_ok(r).then_some(r)
+        rate_ok(Millihertz(r)).then_some(Millihertz(r))
     }
 
     /// The live view: one line per channel (state, p(unstable), bar) and the counters.
@@ -323,17 +323,14 @@ impl Monitor {
                     let (state, p) = if f.fault & bit != 0 {
                         ("FAULT   ", None)
                     } else if f.unstable & bit != 0 {
-                        ("UNSTABLE", Some(f.p[c]))
+                        ("UNSTABLE", f.p[c].q15())
                     } else {
-                        ("stable  ", Some(f.p[c]))
+                        ("stable  ", f.p[c].q15())
                     };
-                    let p = p.filter(|&p| p != P_NONE);
                     let bar = p.map_or(String::new(), |p| {
-                        "#".repeat(((p as u32 * 20 + 16384) / 32768) as usize)
+                        "#".repeat(((p.0 as u32 * 20 + 16384) / 32768) as usize)
                     });
-                    let pv = p.map_or("   -  ".to_string(), |p| {
-                        format!("{:.3} ", Q15(p as i16).to_f64())
-                    });
+                    let pv = p.map_or("   -  ".to_string(), |p| format!("{:.3} ", p.to_f64()));
                     let _ = writeln!(s, "c{c:<2} {state} p={pv}{bar}");
                 }
             }
@@ -371,11 +368,11 @@ impl Monitor {
             .min(MAX_CHANNELS);
         // Frame index from the sample clock: t = (index + 1) · 10⁹ / rate_mHz.
         let index =
-            |t_us: u64| ((t_us as f64 * rate_mhz as f64 / 1e9).round() as i64 - 1).max(0) as u64;
+            |t_us: u64| ((t_us as f64 * rate_mhz.0 as f64 / 1e9).round() as i64 - 1).max(0) as u64;
         let i0 = index(first.t_us);
         // Rows in arrival order; a jump of more than a second (or back) ends the recording
         // there, so no timestamp from the wire sizes a buffer.
-        let max_jump = (rate_mhz as u64 / 1000).max(1);
+        let max_jump = (rate_mhz.0 as u64 / 1000).max(1);
         let mut rows: BTreeMap<u64, &Flags> = BTreeMap::new();
         let mut ended = None;
         let mut prev = 0u64;
@@ -405,11 +402,9 @@ impl Monitor {
         for (&k, f) in &rows {
             let k = k as usize;
             for (c, ch) in samples.iter_mut().enumerate().take(n) {
-                let p = f.p[c];
-                ch[k] = if p == P_NONE || c >= f.channels as usize {
-                    -1.0
-                } else {
-                    Q15(p as i16).to_f64() as f32
+                ch[k] = match f.p[c].q15() {
+                    Some(p) if c < f.channels as usize => p.to_f64() as f32,
+                    _ => -1.0,
                 };
             }
             samples[n][k] = f.unstable as f32;
@@ -424,7 +419,7 @@ impl Monitor {
         let mut t = Trial::new(
             id,
             Unit::Other("p_unstable".into()),
-            rate_mhz as f32 / 1000.0,
+            rate_mhz.0 as f32 / 1000.0,
             samples,
         );
         t.sensor = SensorKind::Other("flags".into());
@@ -478,7 +473,7 @@ pub struct Recorder {
     id: String,
     file: Option<Appender>,
     pending: Vec<(u16, u64, Samples)>,
-    rate_mhz: Option<u32>,
+    rate_mhz: Option<Millihertz>,
     first_index: u64,
     first_t_us: u64,
     channels: usize,
@@ -529,7 +524,7 @@ impl Recorder {
     }
 
     /// The frame rate used, mHz.
-    pub fn rate_mhz(&self) -> Option<u32> {
+    pub fn rate_mhz(&self) -> Option<Millihertz> {
         self.rate_mhz
     }
 
@@ -550,8 +545,9 @@ impl Recorder {
             match info.map(|i| i.sample_rate_mhz) {
                 Some(r) if rate_ok(r) => self.rate_mhz = Some(r),
                 Some(r) if self.pending.is_empty() => self.notes.push(format!(
-                    "info reply's rate {r} mHz is outside {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz: \
-                     ignored, the rate comes from the frame timestamps"
+                    "info reply's rate {} mHz is outside {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz: \
+                     ignored, the rate comes from the frame timestamps",
+                    r.0
                 )),
                 _ => {}
             }
@@ -568,8 +564,8 @@ impl Recorder {
                 .filter_map(|w| w[1].1.checked_sub(w[0].1).filter(|&d| d > 0))
                 .min();
             let r = dt.map(|d| ((1e9 / d as f64) / 10.0).round() as u32 * 10);
-            match r.filter(|&r| rate_ok(r)) {
-                Some(r) => self.rate_mhz = Some(r),
+            match r.filter(|&r| rate_ok(Millihertz(r))) {
+                Some(r) => self.rate_mhz = Some(Millihertz(r)),
                 None => {
                     let (seq, t, _) = self.pending[RATE_PROBE - 1];
                     self.pending.clear();
@@ -641,13 +637,13 @@ impl Recorder {
             return;
         }
         let gap = k - next as u64;
-        let max_fill = (rate as u64 / 1000).max(1) * MAX_FILL_S;
+        let max_fill = (rate.0 as u64 / 1000).max(1) * MAX_FILL_S;
         if gap > max_fill {
             return self.end(format!(
                 "{}: the timestamp jumps {gap} frames ({:.3} s) past the last recorded step: \
                  more than {MAX_FILL_S} s lost or a device reset; recording ended at step {next}",
                 at(next),
-                gap as f64 * 1000.0 / rate as f64
+                gap as f64 * 1000.0 / rate.0 as f64
             ));
         }
         if next + gap as usize >= MAX_STEPS {
@@ -701,7 +697,7 @@ impl Recorder {
         } else {
             Unit::Counts
         };
-        let mut t = Trial::new(&self.id, unit, rate as f32 / 1000.0, samples);
+        let mut t = Trial::new(&self.id, unit, rate.0 as f32 / 1000.0, samples);
         t.source = "slipguard monitor (samples stream)".into();
         t.extra.insert(
             "monitor_first_frame_index".into(),

@@ -7,12 +7,12 @@
 use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::{Profile, ProfileId, ProfileQuery};
 use slipguard_app::replay::{self as fw, OpenWire, ScriptItem};
 use slipguard_core::blob::AlignedBlob;
-use slipguard_core::decision::Q15;
 use slipguard_core::model::Model;
-use slipguard_core::protocol::{self, Command, Deframer, Flags, Frame, MAX_WIRE, Message, P_NONE};
+use slipguard_core::protocol::{self, Command, Deframer, Flags, Frame, MAX_WIRE, Message};
+use slipguard_core::units::Millihertz;
 
 use slipguard_data::error::{DataError, Result};
 use slipguard_data::labels::{LabelConfig, label_annotated};
@@ -28,19 +28,22 @@ pub fn golden_model_path() -> PathBuf {
 /// ([`slipguard_data::shipped::models_dir`]; `hand-force` for the hand, `suction` for suction),
 /// sorted.
 pub fn default_models(profile: &Profile) -> Vec<PathBuf> {
-    let dir = if profile.channels == Profile::SUCTION.channels && profile.tare {
-        "suction"
-    } else {
-        "hand-force"
-    };
-    shipped_blobs(dir)
+    shipped_blobs(default_models_dir(profile.id))
+}
+
+/// The shipped models' folder of a profile (under [`slipguard_data::shipped::models_dir`]).
+pub fn default_models_dir(id: ProfileId) -> &'static str {
+    match id {
+        ProfileId::Hand => "hand-force",
+        ProfileId::Suction => "suction",
+    }
 }
 
 /// The shipped model for a trial's rate on a profile: the first blob (in [`default_models`]
 /// order, then every other `models/*/` folder by name) whose header has the rate `rate_mhz`
 /// and the profile's input unit, else the profile's first default model (the caller's rate
 /// check then names the mismatch).
-pub fn default_model_for(profile: &Profile, rate_mhz: u32) -> PathBuf {
+pub fn default_model_for(profile: &Profile, rate_mhz: Millihertz) -> PathBuf {
     let defaults = default_models(profile);
     let root = slipguard_data::shipped::models_dir();
     let mut dirs: Vec<String> = std::fs::read_dir(&root)
@@ -55,7 +58,8 @@ pub fn default_model_for(profile: &Profile, rate_mhz: u32) -> PathBuf {
     let fits = |p: &PathBuf| {
         load_blob(p).ok().is_some_and(|b| {
             Model::from_bytes(b.as_bytes()).is_ok_and(|m| {
-                m.config().sample_rate_mhz == rate_mhz && m.config().input_unit == profile.unit
+                m.config().sample_rate_mhz == Millihertz(rate_mhz.0)
+                    && m.config().input_unit == profile.unit
             })
         })
     };
@@ -90,12 +94,26 @@ pub fn load_blob(path: &Path) -> Result<AlignedBlob> {
     Ok(AlignedBlob::new(&b))
 }
 
-/// The profile a trial's unit and channel count imply.
-pub fn profile_for(trial: &Trial) -> Profile {
-    match trial.unit {
-        Unit::Counts if trial.n_channels() <= Profile::SUCTION.channels => Profile::SUCTION,
-        _ => Profile::HAND,
-    }
+/// The registry's profile for a trial's unit, rate and channel count ([`Profile::lookup`]); when
+/// none fits, an error that starts with `name` (the file or trial the user gave) and says what
+/// the trial holds and which profiles there are.
+pub fn profile_for(trial: &Trial, name: &str) -> Result<Profile> {
+    let shape = |message: String| DataError::Shape {
+        path: name.into(),
+        message,
+    };
+    let unit = trial.unit.input_unit().ok_or_else(|| {
+        shape(format!(
+            "samples in {}, which no sensor profile takes (mN or counts)",
+            trial.unit
+        ))
+    })?;
+    Profile::lookup(ProfileQuery {
+        unit: Some(unit),
+        rate_mhz: Some(trial.rate_mhz()),
+        channels: Some(trial.n_channels()),
+    })
+    .map_err(|e| shape(e.to_string()))
 }
 
 /// The trial as the firmware replay's input: `steps × channels` little-endian `i32` (values
@@ -130,7 +148,7 @@ pub fn check_blob(
             profile
                 .rates_mhz
                 .iter()
-                .map(|r| format!("{}", *r as f64 / 1000.0))
+                .map(|r| format!("{}", (*r).hz()))
                 .collect::<Vec<_>>()
                 .join(" or ")
         )),
@@ -153,14 +171,14 @@ pub fn check_rate(trial: &Trial, blob: &[u8]) -> std::result::Result<Option<u32>
     };
     let r = m.config().sample_rate_mhz;
     let t = trial.rate_hz as f64 * 1000.0;
-    if (r as f64 - t).abs() > 0.01 * t {
+    if (r.0 as f64 - t).abs() > 0.01 * t {
         return Err(format!(
             "the model runs at {} Hz but the trial is sampled at {} Hz",
-            r as f64 / 1000.0,
+            r.hz(),
             trial.rate_hz
         ));
     }
-    Ok(Some(r))
+    Ok(Some(r.0))
 }
 
 /// A command the replay script sends before a frame.
@@ -244,11 +262,11 @@ pub fn decode_stream(wire: &[u8]) -> Vec<Frame> {
 }
 
 /// The flag frames of a stream, indexed by frame index (from the timestamp and `rate_mhz`).
-pub fn flags_by_frame(frames: &[Frame], rate_mhz: u32, len: usize) -> Vec<Option<Flags>> {
+pub fn flags_by_frame(frames: &[Frame], rate_mhz: Millihertz, len: usize) -> Vec<Option<Flags>> {
     let mut v = vec![None; len];
     for f in frames {
         if let Message::Flags(fl) = f.msg {
-            let i = (fl.timestamp_us as f64 * rate_mhz as f64 / 1e9).round() as i64 - 1;
+            let i = (fl.timestamp_us as f64 * rate_mhz.0 as f64 / 1e9).round() as i64 - 1;
             if let Some(slot) = usize::try_from(i).ok().and_then(|i| v.get_mut(i)) {
                 *slot = Some(fl);
             }
@@ -319,10 +337,10 @@ pub fn plot_fig8(
         .filter_map(|(i, f)| {
             let f = (*f)?;
             let p = (0..f.channels as usize)
-                .filter(|&c| mask & (1 << c) != 0 && f.p[c] != P_NONE)
-                .map(|c| f.p[c])
+                .filter(|&c| mask & (1 << c) != 0)
+                .filter_map(|c| f.p[c].q15())
                 .max()?;
-            Some((t(i), Q15(p as i16).to_f64() as f32))
+            Some((t(i), p.to_f64() as f32))
         })
         .collect();
     let verdict = crate::plot::flag_verdict(

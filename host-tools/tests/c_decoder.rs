@@ -67,7 +67,7 @@ fn line(f: &Frame) -> String {
         Message::Flags(x) => {
             let p: Vec<String> = x.p[..x.channels as usize]
                 .iter()
-                .map(|p| p.to_string())
+                .map(|p| p.to_bits().to_string())
                 .collect();
             format!(
                 "flags seq={s} t={} st={} n={} unst={} fault={} ovr={} skip={} p={} hand={} rule={} contact={}",
@@ -174,7 +174,7 @@ fn line(f: &Frame) -> String {
                         i.hidden,
                         i.model_id,
                         i.model_crc,
-                        i.sample_rate_mhz,
+                        i.sample_rate_mhz.0,
                         i.threshold_q15,
                         i.raise_after,
                         i.clear_after

@@ -6,10 +6,11 @@ use slipguard::closed_loop::{
     T_LIFT_S, min_grip_needed, run_trial,
 };
 use slipguard::replay::golden_model_path;
+use slipguard_core::units::Millihertz;
 
 const CTL: ControllerConfig = ControllerConfig {
     step_fraction: 0.2,
-    rate_mhz: 16_700,
+    rate_mhz: Millihertz(16_700),
     decision: None,
     settle_s: 0.0,
     hold_off_s: 0.0,
@@ -346,7 +347,7 @@ fn shipped_40hz_model_in_the_loop() {
     let blobs = slipguard::replay::shipped_blobs("hand-force-40hz");
     let blob = slipguard::replay::load_blob(&blobs[0]).unwrap();
     let ctl = ControllerConfig {
-        rate_mhz: 40_000,
+        rate_mhz: Millihertz(40_000),
         latency: Latency::MODELLED,
         ..CTL
     };

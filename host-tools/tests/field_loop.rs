@@ -198,7 +198,7 @@ fn replay_takes_a_folder_of_recordings_and_a_single_one() {
     assert!(!bad.status.success());
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(
-        err.contains("wide.csv: 17 channels, the hand profile has 16"),
+        err.contains("wide.csv: no sensor profile takes 17 channels at 16.7 Hz in mN (profiles: hand 16 channels"),
         "{err}"
     );
     std::fs::remove_dir_all(&dir).ok();
@@ -350,7 +350,7 @@ fn field_loop_record_label_train_export_upload_flags_from_the_new_model() {
     assert_eq!(samples, steps);
     // After the grasp start on the new model the flags are the new blob's (an app that ran it
     // from boot, after the same grasp start) and not the old one's.
-    let p_after = |v: &[Frame]| -> Vec<[u16; 16]> {
+    let p_after = |v: &[Frame]| -> Vec<[slipguard_core::protocol::PUnstable; 16]> {
         v.iter()
             .filter_map(|f| match f.msg {
                 Message::Flags(x) => Some(x.p),
@@ -390,7 +390,7 @@ fn field_loop_record_label_train_export_upload_flags_from_the_new_model() {
             let want = out.step.map_or(slipguard_core::protocol::P_NONE, |o| {
                 o.p_unstable_q15.max(0) as u16
             });
-            assert_eq!(want, p[c], "channel {c}");
+            assert_eq!(want, p[c].to_bits(), "channel {c}");
             compared += 1;
             in_contact += usize::from(out.step.is_some());
         }

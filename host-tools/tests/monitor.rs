@@ -1,11 +1,12 @@
 //! The flag-stream monitor: loss and corruption counts on a stream with known damage, the golden
 //! frame decoded field by field, and the `slipguard monitor` binary reading a pseudo terminal.
+use slipguard_core::units::Millihertz;
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use slipguard::monitor::{Event, Monitor};
-use slipguard_core::protocol::{self, Flags, Frame, MAX_WIRE, Message, P_NONE, status};
+use slipguard_core::protocol::{self, Flags, Frame, MAX_WIRE, Message, P_NONE, PUnstable, status};
 
 fn hex(s: &str) -> Vec<u8> {
     (0..s.len())
@@ -78,7 +79,7 @@ fn flag_frame(seq: u16) -> Vec<u8> {
             fault: 0,
             overruns: 0,
             skipped: 0,
-            p,
+            p: p.map(|b| PUnstable::from_bits(b).unwrap()),
         }),
     };
     let mut b = [0u8; MAX_WIRE];
@@ -156,7 +157,7 @@ fn counts_lost_and_corrupt_frames_and_resynchronises() {
             );
             assert_eq!(&b[..n], &flag_frame(r.seq)[..]);
         }
-        assert_eq!(m.rate_mhz(), Some(16_700));
+        assert_eq!(m.rate_mhz(), Some(Millihertz(16_700)));
         // The recording has a row per frame index, lost rows marked.
         let t = m.to_trial("t").unwrap();
         assert_eq!(t.n_steps(), 30);
@@ -183,7 +184,8 @@ fn golden_flag_frame_field_by_field() {
     assert_eq!(f.unstable, 0b0010);
     assert_eq!(f.fault, 0b0100);
     assert_eq!((f.overruns, f.skipped), (1, 0));
-    assert_eq!(&f.p[..4], &[120, 32767, P_NONE, 16384]);
+    let bits: Vec<u16> = f.p[..4].iter().map(|p| p.to_bits()).collect();
+    assert_eq!(bits, [120, 32767, P_NONE, 16384]);
     let view = m.view();
     assert!(view.contains("c1  UNSTABLE p=1.000"), "{view}");
     assert!(view.contains("c2  FAULT"), "{view}");
@@ -273,9 +275,9 @@ fn the_view_shows_the_hand_flag_and_hand_by_rule() {
             fault: 0,
             overruns: 0,
             skipped: 0,
-            p: [P_NONE; 16],
+            p: [PUnstable::NONE; 16],
         };
-        flags.p[0] = 100;
+        flags.p[0] = PUnstable::from_bits(100).unwrap();
         let mut b = [0u8; MAX_WIRE];
         let n = protocol::encode(
             &Frame {

@@ -3,6 +3,7 @@
 //! has the recordings' rate and unit; a folder that mixes rates, options that contradict the
 //! data and unlabelled data are refused before any output; and the CLI defects of issue 27
 //! that touch these commands (each test fails without its fix).
+use slipguard_core::units::Millihertz;
 use std::path::{Path, PathBuf};
 use std::process::{Command as Process, Output};
 
@@ -87,7 +88,7 @@ fn blob_header(p: &Path) -> (u32, InputUnit, String) {
     let name = String::from_utf8_lossy(&c.name)
         .trim_end_matches('\0')
         .to_string();
-    (c.sample_rate_mhz, c.input_unit, name)
+    (c.sample_rate_mhz.0, c.input_unit, name)
 }
 
 fn train_small(data: &Path, out: &Path, extra: &[&str]) -> Process {
@@ -199,7 +200,7 @@ fn forty_hz_force_recordings_train_a_40_hz_blob_named_as_asked() {
         .unwrap()
         .config()
         .sample_rate_mhz;
-    assert_eq!(m, 40_000);
+    assert_eq!(m, Millihertz(40_000));
 }
 
 #[test]
@@ -567,7 +568,7 @@ fn field_loop_at(sim_args: &[&str], profile: slipguard_app::profile::Profile, na
     )
     .unwrap()
     .remove(0);
-    let rate_mhz = (trial.rate_hz * 1000.0).round() as u32;
+    let rate_mhz = trial.rate_mhz();
     assert_eq!(new.parse().unwrap().config.sample_rate_mhz, rate_mhz);
     // The board runs the shipped model for this rate and sensor.
     let old = replay::load_blob(&replay::default_model_for(&profile, rate_mhz)).unwrap();
@@ -613,15 +614,16 @@ fn field_loop_at(sim_args: &[&str], profile: slipguard_app::profile::Profile, na
         reloaded,
         Some(field_script::commit_at(new.as_bytes().len()))
     );
-    let p_after = |v: &[slipguard_core::protocol::Frame]| -> Vec<[u16; 16]> {
-        v.iter()
-            .filter_map(|f| match f.msg {
-                Message::Flags(x) => Some(x.p),
-                _ => None,
-            })
-            .skip(field_script::GRASP_AGAIN_AT as usize)
-            .collect()
-    };
+    let p_after =
+        |v: &[slipguard_core::protocol::Frame]| -> Vec<[slipguard_core::protocol::PUnstable; 16]> {
+            v.iter()
+                .filter_map(|f| match f.msg {
+                    Message::Flags(x) => Some(x.p),
+                    _ => None,
+                })
+                .skip(field_script::GRASP_AGAIN_AT as usize)
+                .collect()
+        };
     assert_eq!(
         p_after(&field).len(),
         steps - field_script::GRASP_AGAIN_AT as usize
@@ -649,7 +651,7 @@ fn field_loop_at(sim_args: &[&str], profile: slipguard_app::profile::Profile, na
             let want = o.step.map_or(slipguard_core::protocol::P_NONE, |o| {
                 o.p_unstable_q15.max(0) as u16
             });
-            assert_eq!(want, p[c], "channel {c}");
+            assert_eq!(want, p[c].to_bits(), "channel {c}");
             in_contact += usize::from(o.step.is_some());
         }
     }

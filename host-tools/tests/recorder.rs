@@ -1,6 +1,7 @@
 //! The monitor as a recorder: a trial replayed through the firmware with the samples stream on,
 //! recorded and compared with the source; lost frames, marks out of order, channel counts and
 //! sizes from the wire that must not be trusted.
+use slipguard_core::units::Millihertz;
 use std::path::{Path, PathBuf};
 use std::process::Command as Process;
 
@@ -54,7 +55,7 @@ fn info(rate_mhz: u32) -> Message {
             variant: 2,
             model_id: 1,
             model_crc: 0x1234_5678,
-            sample_rate_mhz: rate_mhz,
+            sample_rate_mhz: Millihertz(rate_mhz),
             hidden: 8,
             threshold_q15: 16384,
             raise_after: 1,
@@ -285,7 +286,7 @@ fn rates_and_timestamps_from_the_wire_size_nothing() {
             fault: 0,
             overruns: 0,
             skipped: 0,
-            p: [0; MAX_CHANNELS],
+            p: [slipguard_core::protocol::PUnstable::from_bits(0).unwrap(); MAX_CHANNELS],
         })
     };
     let mut seq = 1;

@@ -12,6 +12,7 @@ use slipguard_core::blob::keys;
 use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
 use slipguard_core::decision::{FusedHand, LOAD_WINDOW_MAX, LoadRule, Q15};
 use slipguard_core::features::stft::{StftConfig, WindowShape};
+use slipguard_core::units::Millihertz;
 
 use crate::error::{ExportError, Result};
 
@@ -263,7 +264,7 @@ impl Settings {
     /// The hand rule of the `hand_rule_*` keys (or of [`HAND_RULE`], which overrides them) at
     /// `rate_mhz`: `None` when none is given; a missing key, a fraction outside 0..=1 or a
     /// window outside 1..=64 frames is refused, naming the key.
-    fn hand_rule(&self, rate_mhz: u32) -> Result<Option<FusedHand>> {
+    fn hand_rule(&self, rate_mhz: Millihertz) -> Result<Option<FusedHand>> {
         let keys3 = [
             keys::HAND_RULE_FRACTION,
             keys::HAND_RULE_GUARD,
@@ -305,13 +306,13 @@ impl Settings {
                 return Err(ExportError::settings(k, format!("{f} is not in 0..=1")));
             }
         }
-        let frames = (window_s * rate_mhz as f64 / 1000.0).round();
+        let frames = (window_s * rate_mhz.0 as f64 / 1000.0).round();
         if !(1.0..=LOAD_WINDOW_MAX as f64).contains(&frames) {
             return Err(ExportError::settings(
                 keys3[2],
                 format!(
                     "{window_s} s is {frames} frames at {} Hz; the rule looks back 1 to {LOAD_WINDOW_MAX} frames",
-                    rate_mhz as f64 / 1000.0
+                    rate_mhz.hz()
                 ),
             ));
         }
@@ -440,7 +441,7 @@ impl Settings {
             }
             _ => None,
         };
-        let sample_rate_mhz = (rate * 1000.0).round() as u32;
+        let sample_rate_mhz = Millihertz::from_hz(rate);
         let hand_rule = self.hand_rule(sample_rate_mhz)?;
         let config = ModelConfig {
             model_id: model_id.unwrap_or(0),
@@ -483,9 +484,10 @@ impl Settings {
     }
 }
 
-/// Parses a variant by letter (paper Fig. 5) or name.
+/// Parses a variant by name or, as `--variant` and settings files give it, by the paper's
+/// letter (Fig. 5).
 pub fn parse_variant(v: &str) -> Result<Variant> {
-    v.parse::<Variant>().map_err(|e| {
+    Variant::from_cli(v).map_err(|e| {
         ExportError::settings(
             keys::VARIANT,
             format!("`{}` is not one of {}", v.trim(), e.expected),
@@ -500,7 +502,7 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
     m.insert(keys::FORCE_DIFF.into(), config.force_diff.to_string());
     m.insert(
         keys::SAMPLE_RATE_HZ.into(),
-        format!("{}", config.sample_rate_mhz as f64 / 1000.0),
+        format!("{}", config.sample_rate_mhz.hz()),
     );
     m.insert(keys::INPUT_UNIT.into(), config.input_unit.to_string());
     m.insert(keys::INPUT_OFFSET.into(), config.input_offset.to_string());
@@ -545,7 +547,7 @@ pub fn describe(config: &ModelConfig) -> BTreeMap<String, String> {
             // 4 decimals: far under half a frame at any rate, so it reads back as the same frames.
             format!(
                 "{:.4}",
-                r.strict.window as f64 * 1000.0 / config.sample_rate_mhz.max(1) as f64
+                r.strict.window as f64 * 1000.0 / config.sample_rate_mhz.0.max(1) as f64
             ),
         );
     }
@@ -560,7 +562,7 @@ mod tests {
     fn defaults_are_the_paper_fingertip_setup() {
         let r = Settings::defaults().resolve().unwrap();
         let c = r.config;
-        assert_eq!(c.variant, Variant::ForceStft);
+        assert_eq!(c.variant, Variant::DataStftLstm);
         assert_eq!(c.sample_rate_mhz, slipguard_core::sample::PAPER_RATE_MHZ);
         assert_eq!((c.input_offset, c.input_full_scale), (0, 10_000));
         assert_eq!(c.stft, StftConfig::PAPER);
@@ -677,7 +679,7 @@ mod tests {
         .into();
         s.merge(&file);
         s.set(keys::VARIANT, "b");
-        assert_eq!(s.resolve().unwrap().config.variant, Variant::Stft);
+        assert_eq!(s.resolve().unwrap().config.variant, Variant::StftLstm);
         assert_eq!(s.unknown, vec!["lr".to_string()]);
     }
 

@@ -13,7 +13,7 @@ use std::io::{self, Read, Write};
 use std::time::{Duration, Instant};
 
 use slipguard_app::app::{SystemFault, check_stored};
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::ProfileId;
 use slipguard_core::blob::{CRC32, IMAGE_MAGIC, ModelBlob};
 use slipguard_core::protocol::{
     self, Chunk, Command, Deframer, Frame, Info, MAX_CHUNK, MAX_WIRE, Message, ReplyBody,
@@ -237,10 +237,7 @@ pub fn check_blob(blob: &[u8]) -> Result<u32, UploadError> {
 /// that a model of the wrong rate or unit is refused before anything is written; a profile this
 /// tool does not know is left to the board.
 pub fn check_board(blob: &[u8], info: &Info) -> Result<(), UploadError> {
-    let Some(profile) = [Profile::HAND, Profile::SUCTION]
-        .into_iter()
-        .find(|p| p.id as u8 == info.profile)
-    else {
+    let Some(profile) = ProfileId::from_u8(info.profile).map(ProfileId::profile) else {
         return Ok(());
     };
     let aligned = slipguard_core::blob::AlignedBlob::new(blob);
@@ -250,7 +247,7 @@ pub fn check_board(blob: &[u8], info: &Info) -> Result<(), UploadError> {
             let rates: Vec<String> = profile
                 .rates_mhz
                 .iter()
-                .map(|&x| format!("{:.1} Hz", x as f64 / 1000.0))
+                .map(|&x| format!("{:.1} Hz", x.hz()))
                 .collect();
             Err(UploadError::WrongBoard(format!(
                 "the model runs at {:.1} Hz, the board's {} profile runs {}: train and export at one of those rates",

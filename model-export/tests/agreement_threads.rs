@@ -6,15 +6,16 @@ use slipguard_core::features::stft::StftConfig;
 use slipguard_core::float::FloatModel;
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::quantize::quantize;
+use slipguard_core::units::Millihertz;
 use slipguard_export::calib::{compare, unlabelled};
 
 fn config() -> ModelConfig {
     ModelConfig {
         model_id: 0,
         name: *b"agree\0\0\0\0\0\0\0",
-        variant: Variant::ForceStft,
+        variant: Variant::DataStftLstm,
         force_diff: true,
-        sample_rate_mhz: 16_700,
+        sample_rate_mhz: Millihertz(16_700),
         input_unit: InputUnit::MilliNewton,
         input_offset: 0,
         input_full_scale: 32_768,

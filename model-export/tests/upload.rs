@@ -1,6 +1,7 @@
 //! `slipguard-export upload`'s link logic against the firmware's own upload code over a
 //! simulated flash, with the flag stream running, damaged frames and lost replies.
 
+use slipguard_core::units::Millihertz;
 use std::collections::VecDeque;
 use std::io::{self, Read, Write};
 use std::time::Duration;
@@ -193,7 +194,7 @@ fn upload_cli_makes_the_new_model_active() {
     // loaded host (the device runs the model in debug code for every frame it receives), so a
     // few resends may happen; they must stay within the retries.
     assert!(u.resent <= opts(true).retries, "resent {}", u.resent);
-    assert_eq!(u.info.sample_rate_mhz, 40_000);
+    assert_eq!(u.info.sample_rate_mhz, Millihertz(40_000));
     let mut dev = link.into_inner();
     let booted = upload::select(&SimFlash::new(&mut dev.s0, &mut dev.s1), &Profile::HAND);
     assert_eq!(booted.map(|a| (a.slot, a.seq)), Some((0, 1)));
@@ -209,7 +210,7 @@ fn upload_cli_resumes_after_a_damaged_frame_and_a_lost_reply() {
     let u = link.upload(NEW, &opts(true), |_, _| {}).unwrap();
     assert_eq!((u.slot, u.seq), (0, 1));
     assert!(u.resent >= 4, "resent {}", u.resent);
-    assert_eq!(u.info.sample_rate_mhz, 40_000);
+    assert_eq!(u.info.sample_rate_mhz, Millihertz(40_000));
 }
 
 fn refused(dev: Device, blob: &[u8], release: bool) -> (UploadError, String) {
@@ -310,7 +311,7 @@ fn upload_cli_waits_for_the_release_before_the_commit() {
     let u = link.upload(NEW, &o, |_, _| {}).unwrap();
     assert_eq!((u.slot, u.seq), (0, 1));
     assert!(u.waited_armed > Duration::ZERO);
-    assert_eq!(u.info.sample_rate_mhz, 40_000);
+    assert_eq!(u.info.sample_rate_mhz, Millihertz(40_000));
     let mut dev = link.into_inner();
     let booted = upload::select(&SimFlash::new(&mut dev.s0, &mut dev.s1), &Profile::HAND);
     assert_eq!(booted.map(|a| (a.slot, a.seq)), Some((0, 1)));

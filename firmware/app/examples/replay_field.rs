@@ -43,7 +43,7 @@ fn run(profile: Profile, model: &[u8], second: &[u8], trial: &Trial<'_>) -> (Vec
 }
 
 /// The flag frames' probabilities from the second grasp start on.
-fn flags_after_upload(wire: &[u8]) -> Vec<[u16; 16]> {
+fn flags_after_upload(wire: &[u8]) -> Vec<[slipguard_core::protocol::PUnstable; 16]> {
     let mut d = Deframer::new();
     wire.iter()
         .filter_map(|&b| d.push_decode(b))

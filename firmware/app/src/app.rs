@@ -10,10 +10,10 @@
 //!   hand flag 0).
 //! - Every channel goes through contact detection ([`ContactConfig`], from the model by
 //!   default): only a channel in contact runs the model, and its model state restarts from zero
-//!   at each contact onset. A channel without contact is not predicted: p = [`P_NONE`] with its
+//!   at each contact onset. A channel without contact is not predicted: p = [`PUnstable::NONE`] with its
 //!   fault bit clear, flag 0.
 //! - Faulted channels (see [`crate::fault`]) are not stepped and count as not in contact:
-//!   p = [`P_NONE`], flag 0, and their model and contact state is reset when they recover.
+//!   p = [`PUnstable::NONE`], flag 0, and their model and contact state is reset when they recover.
 //! - The hand decision ([`HandConfig`]) runs once per frame over the p of the channels in
 //!   contact: the hand flag (status bit [`status::HAND_UNSTABLE`], the board's UNSTABLE line),
 //!   0 while disarmed as the per-channel mask is. Its hysteresis restarts at grasp start and
@@ -38,13 +38,14 @@ use crate::schedule::frame_timestamp_us;
 use slipguard_core::blob::{BlobError, IMAGE_MAGIC, InputUnit};
 use slipguard_core::decision::{
     ContactConfig, DecisionConfig, DecisionState, FusedHand, HandConfig, HandOutput, LoadRule,
-    LoadRuleState,
+    LoadRuleState, Q15,
 };
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::protocol::{
-    Command, DecodeError, Error, Fault, Flags, Frame, Info, Message, P_NONE, Reply, ReplyBody,
+    Command, DecodeError, Error, Fault, Flags, Frame, Info, Message, PUnstable, Reply, ReplyBody,
     ReplyStatus, Samples, StreamMode, fault_code, mark, status, upload_code,
 };
+use slipguard_core::units::Millihertz;
 
 /// Firmware version reported by info (major, minor, patch).
 pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
@@ -95,9 +96,9 @@ pub struct FrameResult {
     pub hand_by_rule: bool,
     /// The hand's p(unstable), Q0.15 (0 with no channel in contact or without a model).
     pub hand_p_q15: i16,
-    /// p(unstable) per channel, or [`P_NONE`] for a channel not predicted on (faulted, not in
-    /// contact, or no model).
-    pub p: [u16; MAX_CHANNELS],
+    /// p(unstable) per channel, or [`PUnstable::NONE`] for a channel not predicted on (faulted,
+    /// not in contact, or no model).
+    pub p: [PUnstable; MAX_CHANNELS],
     /// Model input per channel (the profile's unit, after tare): what `Model::step` received,
     /// or would have for a faulted channel or without a model.
     pub value: [i32; MAX_CHANNELS],
@@ -139,7 +140,7 @@ pub fn check_model<'m>(profile: &Profile, blob: &'m [u8]) -> Result<Model<'m>, S
     let m = Model::from_bytes(blob).map_err(SystemFault::BadModel)?;
     let c = m.config();
     if !profile.check_rate(c.sample_rate_mhz) {
-        Err(SystemFault::RateMismatch(c.sample_rate_mhz))
+        Err(SystemFault::RateMismatch(c.sample_rate_mhz.0))
     } else if c.input_unit != profile.unit {
         Err(SystemFault::UnitMismatch)
     } else {
@@ -245,7 +246,7 @@ impl<'m> App<'m> {
     }
 
     /// The frame rate to run the ADC at: the model's, or the profile's default without one.
-    pub fn rate_mhz(&self) -> u32 {
+    pub fn rate_mhz(&self) -> Millihertz {
         match &self.model {
             Ok(m) => m.config().sample_rate_mhz,
             Err(_) => self.profile.default_rate_mhz(),
@@ -311,7 +312,7 @@ impl<'m> App<'m> {
             hand_unstable: false,
             hand_by_rule: false,
             hand_p_q15: 0,
-            p: [P_NONE; MAX_CHANNELS],
+            p: [PUnstable::NONE; MAX_CHANNELS],
             value: [0; MAX_CHANNELS],
         };
         for c in 0..n {
@@ -338,8 +339,7 @@ impl<'m> App<'m> {
                 continue;
             };
             r.contact |= bit;
-            let p = out.p_unstable_q15.max(0);
-            r.p[c] = p as u16;
+            r.p[c] = PUnstable::from_q15(Q15(out.p_unstable_q15));
             if out.unstable && self.armed {
                 r.unstable |= bit;
             }
@@ -350,7 +350,7 @@ impl<'m> App<'m> {
         } = self.hand.update(
             &mut self.hand_state,
             // Each channel's p, `None` when not in contact (so not predicted on).
-            r.p[..n].iter().map(|&p| (p != P_NONE).then_some(p as i16)),
+            r.p[..n].iter().map(|p| p.q15().map(|p| p.0)),
         );
         r.hand_p_q15 = p_unstable_q15;
         let hand = match &self.rule {
@@ -422,7 +422,7 @@ impl<'m> App<'m> {
         let rate = self.rate_mhz();
         let timestamp_us = frame_timestamp_us(r.index, rate);
         if let Err(fault) = self.model {
-            let per_second = (rate / 1000).max(1);
+            let per_second = (rate.0 / 1000).max(1);
             let due = self.fault_frames.is_multiple_of(per_second);
             self.fault_frames = self.fault_frames.wrapping_add(1);
             if !due {

@@ -14,7 +14,7 @@
 //! mask and not predicted on; their model state is reset when they come back.
 
 use crate::decimate::RATIO;
-use crate::profile::Profile;
+use crate::profile::{AdcCode, Profile};
 
 /// Fault kind bits.
 pub mod kind {
@@ -32,7 +32,7 @@ pub struct FaultDetector {
     low_run: u16,
     high_run: u16,
     same_run: u32,
-    last: u16,
+    last: AdcCode,
     /// Kinds seen during the current frame.
     seen: u8,
     /// Kinds reported last frame (for logs).
@@ -48,7 +48,7 @@ impl FaultDetector {
             low_run: 0,
             high_run: 0,
             same_run: 0,
-            last: u16::MAX,
+            last: AdcCode(u16::MAX),
             seen: 0,
             reported: 0,
             hold: 0,
@@ -57,7 +57,7 @@ impl FaultDetector {
 
     /// Feeds one raw code.
     #[inline]
-    pub fn push(&mut self, p: &Profile, code: u16) {
+    pub fn push(&mut self, p: &Profile, code: AdcCode) {
         self.low_run = if code < p.disconnected_below {
             self.low_run.saturating_add(1)
         } else {
@@ -110,7 +110,7 @@ mod tests {
         let mut d = FaultDetector::new();
         let mut out = Vec::new();
         for (i, c) in codes.into_iter().enumerate() {
-            d.push(p, c);
+            d.push(p, AdcCode(c));
             if (i + 1) % RATIO == 0 {
                 out.push(d.end_frame(p));
             }

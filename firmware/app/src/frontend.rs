@@ -9,7 +9,7 @@
 use crate::MAX_CHANNELS;
 use crate::decimate::{Decimator, OUT_FRAC_BITS, RATIO};
 use crate::fault::FaultDetector;
-use crate::profile::Profile;
+use crate::profile::{AdcCode, Profile};
 
 /// One model period's worth of input for every channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -58,20 +58,20 @@ impl Frontend {
 
     /// Feeds one scan (`scan.len()` ≥ channels; extra codes are ignored, missing ones read 0).
     /// Returns a frame every [`RATIO`] scans.
-    pub fn push_scan(&mut self, scan: &[u16]) -> Option<FrameInput> {
+    pub fn push_scan(&mut self, scan: &[AdcCode]) -> Option<FrameInput> {
         let n = self.profile.channels.min(MAX_CHANNELS);
         if !self.primed {
             self.primed = true;
             for c in 0..n {
-                let x = scan.get(c).copied().unwrap_or(0);
-                self.dec[c].prime(x as i32);
+                let x = scan.get(c).copied().unwrap_or_default();
+                self.dec[c].prime(x.0 as i32);
             }
         }
         let mut out = None;
         for c in 0..n {
-            let x = scan.get(c).copied().unwrap_or(0);
+            let x = scan.get(c).copied().unwrap_or_default();
             self.det[c].push(&self.profile, x);
-            if let Some(y) = self.dec[c].push(x as i32) {
+            if let Some(y) = self.dec[c].push(x.0 as i32) {
                 out.get_or_insert([0i32; MAX_CHANNELS])[c] = y;
             }
         }
@@ -96,7 +96,7 @@ impl Frontend {
     /// Feeds a block of interleaved scans (the ring-buffered DMA's half buffer); calls `emit`
     /// for every completed frame. A trailing partial scan is ignored (the DMA block length is a
     /// multiple of the channel count).
-    pub fn push_block(&mut self, block: &[u16], mut emit: impl FnMut(FrameInput)) {
+    pub fn push_block(&mut self, block: &[AdcCode], mut emit: impl FnMut(FrameInput)) {
         let n = self.profile.channels.max(1);
         for scan in block.chunks_exact(n) {
             if let Some(f) = self.push_scan(scan) {
@@ -121,8 +121,8 @@ mod tests {
         let mut f = Frontend::new(p);
         let mut frames = Vec::new();
         for i in 0..RATIO * 5 {
-            let mut scan = [1000u16 + (i % 2) as u16; 16];
-            scan[3] = 0; // disconnected
+            let mut scan = [AdcCode(1000 + (i % 2) as u16); 16];
+            scan[3] = AdcCode(0); // disconnected
             if let Some(fr) = f.push_scan(&scan) {
                 frames.push(fr);
             }
@@ -140,8 +140,8 @@ mod tests {
         let mut g = Frontend::new(p);
         let mut block = Vec::new();
         for i in 0..RATIO * 5 {
-            let mut scan = [1000u16 + (i % 2) as u16; 16];
-            scan[3] = 0;
+            let mut scan = [AdcCode(1000 + (i % 2) as u16); 16];
+            scan[3] = AdcCode(0);
             block.extend_from_slice(&scan);
         }
         let mut frames2 = Vec::new();

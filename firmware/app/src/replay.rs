@@ -16,7 +16,7 @@ use crate::MAX_CHANNELS;
 use crate::app::App;
 use crate::decimate::RATIO;
 use crate::frontend::{FrameInput, Frontend};
-use crate::profile::Profile;
+use crate::profile::{AdcCode, Profile};
 use slipguard_core::protocol::{self, Deframer, Frame, MAX_WIRE};
 
 /// A trial at the model rate: `steps × channels` values, row-major, as little-endian `i32`
@@ -97,17 +97,17 @@ impl<'f> EmulatedSensor<'f> {
     }
 
     /// One scan for trial step `step` (every call advances the dither).
-    pub fn scan(&mut self, trial: &Trial<'_>, step: usize, out: &mut [u16; MAX_CHANNELS]) {
+    pub fn scan(&mut self, trial: &Trial<'_>, step: usize, out: &mut [AdcCode; MAX_CHANNELS]) {
         for (c, o) in out.iter_mut().enumerate().take(self.profile.channels) {
-            let code = self.profile.to_counts(trial.value(step, c)) as i32 + self.dither();
+            let code = self.profile.to_counts(trial.value(step, c)).0 as i64 + self.dither() as i64;
             let open = self
                 .open
                 .iter()
                 .any(|w| w.channel == c && (w.from_step..w.to_step).contains(&step));
             *o = if open {
-                0
+                AdcCode(0)
             } else {
-                code.clamp(0, self.profile.adc_max as i32) as u16
+                self.profile.clamp_code(code)
             };
         }
     }
@@ -160,7 +160,7 @@ pub fn run(
     let mut deframer = Deframer::new();
     let mut sent = 0;
     let mut buf = [0u8; MAX_WIRE];
-    let mut scan = [0u16; MAX_CHANNELS];
+    let mut scan = [AdcCode(0); MAX_CHANNELS];
     for step in 0..trial.steps() {
         for _ in 0..RATIO {
             sensor.scan(trial, step, &mut scan);
@@ -192,7 +192,7 @@ pub fn frame_inputs(
 ) -> usize {
     let mut frontend = Frontend::new(profile);
     let mut sensor = EmulatedSensor::new(profile);
-    let mut scan = [0u16; MAX_CHANNELS];
+    let mut scan = [AdcCode(0); MAX_CHANNELS];
     let mut n = 0;
     for step in 0..trial.steps() {
         for _ in 0..RATIO {
@@ -361,7 +361,7 @@ pub fn run_field<F: crate::upload::Flash>(
     let mut sent = 0;
     let mut reloaded = None;
     let mut buf = [0u8; MAX_WIRE];
-    let mut scan = [0u16; MAX_CHANNELS];
+    let mut scan = [AdcCode(0); MAX_CHANNELS];
     for step in 0..trial.steps() {
         for _ in 0..RATIO {
             sensor.scan(trial, step, &mut scan);
@@ -465,11 +465,9 @@ pub mod scenario {
         if h[..4] != MAGIC {
             return Err(ScenarioError::NoMagic);
         }
-        let profile = match h[4] {
-            p if p == ProfileId::Hand as u8 => Profile::HAND,
-            p if p == ProfileId::Suction as u8 => Profile::SUCTION,
-            p => return Err(ScenarioError::Profile(p)),
-        };
+        let profile = ProfileId::from_u8(h[4])
+            .ok_or(ScenarioError::Profile(h[4]))?
+            .profile();
         let len = |i: usize| u32::from_le_bytes([h[i], h[i + 1], h[i + 2], h[i + 3]]) as usize;
         let (trial_len, upload_len) = (len(8), len(12));
         let step = 4 * profile.channels;

@@ -8,6 +8,8 @@
 //! UART, is **skipped** and counted in `skipped`. Both counters go out in every flag frame, so
 //! no frame is ever lost silently; sequence numbers cover transmission losses.
 
+use slipguard_core::units::Millihertz;
+
 /// Deadline accounting for one model rate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Deadline {
@@ -17,8 +19,12 @@ pub struct Deadline {
 
 impl Deadline {
     /// For a model rate in mHz.
-    pub const fn for_rate_mhz(rate_mhz: u32) -> Self {
-        let r = if rate_mhz == 0 { 1 } else { rate_mhz as u64 };
+    pub const fn for_rate_mhz(rate_mhz: Millihertz) -> Self {
+        let r = if rate_mhz.0 == 0 {
+            1
+        } else {
+            rate_mhz.0 as u64
+        };
         Self {
             period_us: (1_000_000_000u64 / r) as u32,
         }
@@ -33,8 +39,12 @@ impl Deadline {
 
 /// Time of the last sample of frame `index` in µs since the first scan, from the sample clock,
 /// wrapping at 2^32 (71.6 minutes).
-pub fn frame_timestamp_us(index: u32, rate_mhz: u32) -> u32 {
-    let r = if rate_mhz == 0 { 1 } else { rate_mhz as u64 };
+pub fn frame_timestamp_us(index: u32, rate_mhz: Millihertz) -> u32 {
+    let r = if rate_mhz.0 == 0 {
+        1
+    } else {
+        rate_mhz.0 as u64
+    };
     ((index as u64 + 1) * 1_000_000_000 / r) as u32
 }
 
@@ -44,13 +54,13 @@ mod tests {
 
     #[test]
     fn deadlines_and_timestamps() {
-        let d = Deadline::for_rate_mhz(16_700);
+        let d = Deadline::for_rate_mhz(Millihertz(16_700));
         assert_eq!(d.period_us, 59_880);
         assert!(!d.is_late(1000, 1000 + 59_880));
         assert!(d.is_late(1000, 1000 + 59_881));
         assert!(!d.is_late(5000, 10)); // clock oddities never count as late
-        assert_eq!(frame_timestamp_us(0, 16_700), 59_880);
-        assert_eq!(frame_timestamp_us(166, 16_700), 10_000_000);
-        assert_eq!(frame_timestamp_us(39, 40_000), 1_000_000);
+        assert_eq!(frame_timestamp_us(0, Millihertz(16_700)), 59_880);
+        assert_eq!(frame_timestamp_us(166, Millihertz(16_700)), 10_000_000);
+        assert_eq!(frame_timestamp_us(39, Millihertz(40_000)), 1_000_000);
     }
 }

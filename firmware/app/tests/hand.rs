@@ -5,13 +5,13 @@
 use slipguard_app::app::{App, FrameResult};
 use slipguard_app::decimate::RATIO;
 use slipguard_app::frontend::{FrameInput, Frontend};
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::{AdcCode, Profile};
 use slipguard_core::blob::AlignedBlob;
 use slipguard_core::decision::{FusedHand, LoadRule, Q15};
 use slipguard_core::float::FloatModel;
 use slipguard_core::model::{ChannelState, Model};
 use slipguard_core::protocol::{
-    self, Command, Frame, MAX_WIRE, Message, P_NONE, ReplyBody, ReplyStatus, status,
+    self, Command, Frame, MAX_WIRE, Message, PUnstable, ReplyBody, ReplyStatus, status,
 };
 use slipguard_core::quantize::quantize;
 
@@ -52,7 +52,7 @@ fn frames(level: impl Fn(usize, usize) -> u16, n: usize) -> Vec<FrameInput> {
         for (c, v) in s.iter_mut().enumerate() {
             *v = level(i / RATIO, c) + (i % 2) as u16;
         }
-        out.extend(fe.push_scan(&s));
+        out.extend(fe.push_scan(AdcCode::from_dma(&s)));
     }
     out
 }
@@ -120,11 +120,11 @@ fn a_channel_without_contact_never_raises_the_hand_flag() {
         assert_eq!(r.contact & !(1 << 3), 0, "frame {i}");
         assert_eq!(r.unstable & !(1 << 3), 0, "frame {i}");
         for c in (0..16).filter(|&c| c != 3) {
-            assert_eq!(r.p[c], P_NONE, "frame {i} ch {c}");
+            assert_eq!(r.p[c], PUnstable::NONE, "frame {i} ch {c}");
         }
         if r.contact == 0 {
             assert_eq!(r.hand_p_q15, 0, "frame {i}");
-            assert_eq!(r.p[3], P_NONE, "frame {i}");
+            assert_eq!(r.p[3], PUnstable::NONE, "frame {i}");
         } else {
             assert!(r.hand_p_q15 > 29_000, "frame {i}: p {}", r.hand_p_q15);
         }
@@ -185,7 +185,7 @@ fn at_each_contact_onset_a_channel_gives_a_fresh_models_output() {
         let mut n = 0;
         for r in results[on..].iter().take_while(|r| r.contact & bit != 0) {
             let want = model.step(&mut fresh, r.value[5]).p_unstable_q15.max(0) as u16;
-            assert_eq!(r.p[5], want, "onset {on}, frame {}", r.index);
+            assert_eq!(r.p[5].to_bits(), want, "onset {on}, frame {}", r.index);
             n += 1;
         }
         assert!(n >= 20, "onset {on}: {n} frames in contact");
@@ -198,7 +198,11 @@ fn at_each_contact_onset_a_channel_gives_a_fresh_models_output() {
         .map(|r| model.step(&mut ungated, r.value[5]).p_unstable_q15.max(0) as u16)
         .collect();
     let on = onsets[1];
-    assert_ne!(results[on].p[5], cont[on], "restart at onset {on}");
+    assert_ne!(
+        results[on].p[5].to_bits(),
+        cont[on],
+        "restart at onset {on}"
+    );
 }
 
 #[test]

@@ -4,13 +4,14 @@
 use slipguard_app::app::App;
 use slipguard_app::decimate::RATIO;
 use slipguard_app::frontend::{FrameInput, Frontend};
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::{AdcCode, Profile};
 use slipguard_app::replay::{self, CHEEZ_TRIAL, ScriptItem, cheez_script};
 use slipguard_core::blob::{AlignedBlob, CRC32};
 use slipguard_core::protocol::{
-    self, Command, Deframer, Frame, MAX_WIRE, Message, P_NONE, ReplyBody, ReplyStatus, fault_code,
-    msg_type, status,
+    self, Command, Deframer, Frame, MAX_WIRE, Message, PUnstable, ReplyBody, ReplyStatus,
+    fault_code, msg_type, status,
 };
+use slipguard_core::units::Millihertz;
 
 const GOLDEN: &[u8] = include_bytes!("../../core/tests/fixtures/bench/model.bin");
 
@@ -165,7 +166,7 @@ fn replay_of_a_real_trial_answers_every_command_and_flags_the_drop() {
             info.sample_rate_mhz,
             info.hidden
         ),
-        (1, 16, 16_700, 128)
+        (1, 16, Millihertz(16_700), 128)
     );
     let errors: Vec<_> = replies[2..5]
         .iter()
@@ -196,13 +197,13 @@ fn replay_of_a_real_trial_answers_every_command_and_flags_the_drop() {
             assert_eq!(f.fault, if open { 1 << 14 } else { 0 }, "frame {i}");
             // Not predicted while faulted (nor while out of contact, fault bit clear).
             if open {
-                assert_eq!(f.p[14], P_NONE, "frame {i}");
+                assert_eq!(f.p[14], PUnstable::NONE, "frame {i}");
             }
         }
-        // P_NONE exactly for the channels faulted or out of contact; the hand flag only with
+        // PUnstable::NONE exactly for the channels faulted or out of contact; the hand flag only with
         // a channel in contact.
         for c in 0..16 {
-            let none = f.p[c] == P_NONE;
+            let none = f.p[c].is_none();
             assert_eq!(!none, f.contact() & (1 << c) != 0, "frame {i} ch {c}");
         }
         if f.hand_unstable() {
@@ -215,10 +216,10 @@ fn replay_of_a_real_trial_answers_every_command_and_flags_the_drop() {
     let unstable_frames = flags.iter().filter(|f| f.unstable != 0).count();
     let p_max = flags
         .iter()
-        .flat_map(|f| f.p.iter().copied())
-        .filter(|&p| p != P_NONE)
+        .flat_map(|f| f.p.iter().filter_map(|p| p.q15()))
         .max()
-        .unwrap();
+        .unwrap()
+        .0;
     println!(
         "replay Cheez_100_814_top_3: {} frames, {} bytes, {} flag frames with a flag up, max p {}",
         frames.len(),
@@ -301,7 +302,7 @@ fn bad_blobs_give_fault_frames_and_no_flags() {
     let b = with_rate(40_000);
     let app = App::new(Profile::HAND, b.as_bytes());
     assert!(app.model().is_ok());
-    assert_eq!(app.rate_mhz(), 40_000);
+    assert_eq!(app.rate_mhz(), Millihertz(40_000));
     // The hand model on the suction profile: rate and unit both wrong, rate reported first.
     let g = golden();
     let app = App::new(Profile::SUCTION, g.as_bytes());
@@ -316,7 +317,7 @@ fn scans(level: impl Fn(usize, usize) -> u16, frames: usize) -> Vec<FrameInput> 
         for (c, v) in s.iter_mut().enumerate() {
             *v = level(i, c) + (i % 2) as u16;
         }
-        out.extend(fe.push_scan(&s));
+        out.extend(fe.push_scan(AdcCode::from_dma(&s)));
     }
     out
 }
@@ -352,19 +353,19 @@ fn faulted_channels_are_masked_and_not_predicted() {
         // Not predicted while faulted, nor (out of contact) until the channel's contact begins
         // again `on` loaded frames after the fault cleared, as at boot.
         let none2 = i + 1 < on || (5..back + on - 1).contains(&i);
-        assert_eq!(f.p[2] == P_NONE, none2, "frame {i}");
+        assert_eq!(f.p[2].is_none(), none2, "frame {i}");
         // Back in contact, channel 2 gives what channel 0 (same input) gave at its own onset:
         // the model restarted from zero.
         if i >= back + on - 1 {
             assert_eq!(f.p[2], p0[i - back], "frame {i}");
         }
-        assert!(f.fault & (1 << 7) != 0 && f.p[7] == P_NONE && f.unstable & (1 << 7) == 0);
+        assert!(f.fault & (1 << 7) != 0 && f.p[7].is_none() && f.unstable & (1 << 7) == 0);
         assert_eq!(
             f.contact() & (1 << 7),
             0,
             "a faulted channel is not in contact"
         );
-        assert_eq!(f.p[0] <= 32767, i + 1 >= on, "frame {i}");
+        assert_eq!(f.p[0].q15().is_some(), i + 1 >= on, "frame {i}");
         assert_eq!(f.contact() & 1 != 0, i + 1 >= on, "frame {i}");
         p0.push(f.p[0]);
     }
@@ -432,7 +433,7 @@ fn grasp_start_resets_and_tares_release_disarms() {
         };
         assert_eq!(f.status & status::ARMED, 0);
         assert_eq!(f.unstable, 0);
-        assert!(f.p[0] <= 32767);
+        assert!(f.p[0].q15().is_some());
     }
     assert_eq!(replies.len(), 2);
     assert!(first.iter().all(|f| matches!(f.msg, Message::Flags(_))));
@@ -456,7 +457,7 @@ fn suction_profile_tares_at_grasp_start() {
     let mut last = None;
     for i in 0..RATIO * 6 {
         let s = [2500 + (i % 2) as u16; 4];
-        if let Some(inp) = fe.push_scan(&s) {
+        if let Some(inp) = fe.push_scan(AdcCode::from_dma(&s)) {
             last = app.frame(&inp, false);
         }
     }
@@ -482,7 +483,7 @@ fn suction_profile_tares_at_grasp_start() {
     );
     for i in 0..RATIO * 2 {
         let s = [2500 + (i % 2) as u16; 4];
-        if let Some(inp) = fe.push_scan(&s) {
+        if let Some(inp) = fe.push_scan(AdcCode::from_dma(&s)) {
             let Message::Flags(f) = app.frame(&inp, false).unwrap().msg else {
                 panic!()
             };

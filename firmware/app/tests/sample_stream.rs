@@ -9,6 +9,7 @@ use slipguard_core::blob::AlignedBlob;
 use slipguard_core::protocol::{
     self, Command, Deframer, Frame, MAX_WIRE, Message, ReplyBody, StreamMode, mark,
 };
+use slipguard_core::units::Millihertz;
 
 const GOLDEN: &[u8] = include_bytes!("../../core/tests/fixtures/bench/model.bin");
 
@@ -104,7 +105,10 @@ fn recording_matches_the_source_trial() {
     for (k, smp) in rec.iter().enumerate() {
         assert_eq!(smp.channels, 16);
         assert_eq!(smp.unit, 0, "hand profile: mN");
-        assert_eq!(smp.timestamp_us, frame_timestamp_us(k as u32, 16_700));
+        assert_eq!(
+            smp.timestamp_us,
+            frame_timestamp_us(k as u32, Millihertz(16_700))
+        );
         if k < 4 {
             continue; // the filter's start-up transient
         }

@@ -10,9 +10,10 @@ use slipguard_app::upload::{
 use slipguard_core::blob::{AlignedBlob, CRC32};
 use slipguard_core::model_ram::ModelRam;
 use slipguard_core::protocol::{
-    self, Chunk, Command, Deframer, Frame, MAX_CHUNK, MAX_WIRE, Message, P_NONE, ReplyBody,
-    ReplyStatus, upload_code,
+    self, Chunk, Command, Deframer, Frame, MAX_CHUNK, MAX_WIRE, Message, ReplyBody, ReplyStatus,
+    upload_code,
 };
+use slipguard_core::units::Millihertz;
 
 /// 16.7 Hz hand model (the factory model here).
 const FACTORY: &[u8] = include_bytes!("../../core/tests/fixtures/bench/model.bin");
@@ -193,7 +194,7 @@ fn upload_replaces_the_model_and_the_next_boot_keeps_it() {
     );
     let ram = AlignedBlob::new(upload::blob(&flash, active));
     let mut app = App::new(HAND, ram.as_bytes());
-    assert_eq!(app.rate_mhz(), 16_700);
+    assert_eq!(app.rate_mhz(), Millihertz(16_700));
     let mut up = Uploader::new(active);
     // Armed on a running model: refused, nothing erased.
     let (r, _) = send(
@@ -222,7 +223,7 @@ fn upload_replaces_the_model_and_the_next_boot_keeps_it() {
     let seq_before = r.seq;
     let ram2 = AlignedBlob::new(upload::blob(&flash, Some(new)));
     let mut app = app.reload(ram2.as_bytes());
-    assert_eq!(app.rate_mhz(), 40_000);
+    assert_eq!(app.rate_mhz(), Millihertz(40_000));
     assert_eq!(app.info().model_crc, crc(&NEW[..NEW.len() - 4]));
     assert!(app.model().is_ok());
     let (r, _) = send(&mut up, &mut app, &mut flash, 9, Command::Info);
@@ -253,7 +254,7 @@ fn small(rate_mhz: u32, seed: u64) -> Vec<u8> {
         .unwrap()
         .config();
     c.hidden = [8, 0];
-    c.sample_rate_mhz = rate_mhz;
+    c.sample_rate_mhz = Millihertz(rate_mhz);
     let (bytes, _) =
         slipguard_core::quantize::quantize(&FloatModel::init_like_pytorch(c, seed), &[], None)
             .unwrap();
@@ -666,7 +667,7 @@ fn upload_into_a_board_without_a_usable_model() {
     let ram2 = AlignedBlob::new(upload::blob(&flash, Some(a)));
     let app = app.reload(ram2.as_bytes());
     assert!(app.model().is_ok());
-    assert_eq!(app.rate_mhz(), 40_000);
+    assert_eq!(app.rate_mhz(), Millihertz(40_000));
 }
 
 /// The field script on a recorded trial (`replay::run_field`, the host side of the QEMU
@@ -721,7 +722,7 @@ fn upload_during_a_replayed_trial_then_flags_from_the_new_model() {
     for (i, f) in field.iter().enumerate() {
         assert_eq!(f.seq, i as u16);
     }
-    let after = |v: &[Frame]| -> Vec<[u16; 16]> {
+    let after = |v: &[Frame]| -> Vec<[slipguard_core::protocol::PUnstable; 16]> {
         v.iter()
             .filter_map(|f| match f.msg {
                 Message::Flags(x) => Some(x),
@@ -739,8 +740,8 @@ fn upload_during_a_replayed_trial_then_flags_from_the_new_model() {
     // (p none, fault clear), whichever model is loaded; the old and the new model's frames
     // differ before, while the hand holds the object.
     assert_eq!(after(&field), after(&old_ref));
-    assert!(after(&field).iter().flatten().all(|&p| p == P_NONE));
-    let held = |v: &[Frame]| -> Vec<[u16; 16]> {
+    assert!(after(&field).iter().flatten().all(|p| p.is_none()));
+    let held = |v: &[Frame]| -> Vec<[slipguard_core::protocol::PUnstable; 16]> {
         v.iter()
             .filter_map(|f| match f.msg {
                 Message::Flags(x) => Some(x.p),

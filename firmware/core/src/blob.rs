@@ -16,6 +16,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::features::FeatureLayout;
 use crate::features::stft::{StftConfig, StftError, WindowShape};
 use crate::load_rule::{FusedHand, LOAD_WINDOW_MAX, LoadRule};
+use crate::units::Millihertz;
 use crate::{MAX_HIDDEN, MAX_INPUT};
 
 /// First four bytes of every blob.
@@ -43,24 +44,33 @@ pub const MAX_TENSORS: usize = 8;
 /// The CRC used by the blob (CRC-32/ISO-HDLC: zlib, PNG, Ethernet).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
-/// Which of the paper's four networks (Fig. 5) the blob holds.
+/// Which of the paper's four networks (Fig. 5) the blob holds. One name each: the enum variant
+/// is the paper's name, [`Variant::name`] its spelling in the CLIs, checkpoints, settings and
+/// JSON; the paper's letters (`a` … `d`, [`Variant::letter`]) are accepted as aliases at the
+/// command-line edge only ([`Variant::from_letter`]). Every `match` on it is exhaustive, so a
+/// new variant stops the compiler at each place that must say what it does.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
 pub enum Variant {
     /// (a) LSTM on the force.
-    Force = 0,
+    Lstm = 0,
     /// (b) STFT & LSTM: LSTM on the STFT bands.
-    Stft = 1,
+    StftLstm = 1,
     /// (c) (Data + STFT) & LSTM: one LSTM on the force and the bands.
-    ForceStft = 2,
+    DataStftLstm = 2,
     /// (d) LSTM + STFT & LSTM: a force LSTM and a band LSTM, hidden states concatenated into the dense layer.
-    DualLstm = 3,
+    LstmStftLstm = 3,
 }
 
 impl Variant {
     /// All variants, in format order.
-    pub const ALL: [Variant; 4] = [Self::Force, Self::Stft, Self::ForceStft, Self::DualLstm];
+    pub const ALL: [Variant; 4] = [
+        Self::Lstm,
+        Self::StftLstm,
+        Self::DataStftLstm,
+        Self::LstmStftLstm,
+    ];
 
     /// Decodes the header byte.
     pub fn from_u8(v: u8) -> Option<Self> {
@@ -68,42 +78,57 @@ impl Variant {
     }
     /// Whether the network sees the force sample (and d(t) when enabled).
     pub fn uses_force(self) -> bool {
-        !matches!(self, Self::Stft)
+        match self {
+            Self::Lstm | Self::DataStftLstm | Self::LstmStftLstm => true,
+            Self::StftLstm => false,
+        }
     }
     /// Whether the network sees STFT bands.
     pub fn uses_bands(self) -> bool {
-        !matches!(self, Self::Force)
+        match self {
+            Self::StftLstm | Self::DataStftLstm | Self::LstmStftLstm => true,
+            Self::Lstm => false,
+        }
     }
     /// Number of LSTMs.
     pub fn lstm_count(self) -> usize {
-        if matches!(self, Self::DualLstm) { 2 } else { 1 }
+        match self {
+            Self::Lstm | Self::StftLstm | Self::DataStftLstm => 1,
+            Self::LstmStftLstm => 2,
+        }
     }
-    /// Short name used by the CLIs.
+    /// The variant's one name: CLIs, checkpoints, exporter settings, JSON, tables.
     pub fn name(self) -> &'static str {
         match self {
-            Self::Force => "lstm",
-            Self::Stft => "stft-lstm",
-            Self::ForceStft => "data-stft-lstm",
-            Self::DualLstm => "lstm-stft-lstm",
+            Self::Lstm => "lstm",
+            Self::StftLstm => "stft-lstm",
+            Self::DataStftLstm => "data-stft-lstm",
+            Self::LstmStftLstm => "lstm-stft-lstm",
         }
     }
     /// The paper's letter for the variant (Fig. 5: (a) to (d)).
     pub fn letter(self) -> char {
         match self {
-            Self::Force => 'a',
-            Self::Stft => 'b',
-            Self::ForceStft => 'c',
-            Self::DualLstm => 'd',
+            Self::Lstm => 'a',
+            Self::StftLstm => 'b',
+            Self::DataStftLstm => 'c',
+            Self::LstmStftLstm => 'd',
         }
     }
-    /// Other names [`FromStr`](core::str::FromStr) accepts: the older exporter spellings.
-    fn alias(self) -> &'static str {
-        match self {
-            Self::Force => "force",
-            Self::Stft => "stft",
-            Self::ForceStft => "force-stft",
-            Self::DualLstm => "dual",
-        }
+    /// The variant of a paper's letter as a command line gives it (`c` or `(c)`): the CLIs'
+    /// alias, not a name ([`FromStr`](core::str::FromStr) takes [`Variant::name`] only).
+    pub fn from_letter(s: &str) -> Option<Self> {
+        let s = s.trim();
+        let l = s
+            .strip_prefix('(')
+            .and_then(|s| s.strip_suffix(')'))
+            .unwrap_or(s);
+        Self::ALL.into_iter().find(|v| l.chars().eq([v.letter()]))
+    }
+
+    /// A command line's variant: [`Variant::name`] or the paper's letter ([`Variant::from_letter`]).
+    pub fn from_cli(s: &str) -> Result<Self, UnknownName> {
+        Self::from_letter(s).map_or_else(|| s.trim().parse(), Ok)
     }
 }
 
@@ -147,19 +172,14 @@ impl core::fmt::Display for Variant {
 impl core::str::FromStr for Variant {
     type Err = UnknownName;
 
-    /// Parses [`Variant::name`], the paper's letter (`c` or `(c)`) or the older alias.
+    /// Parses [`Variant::name`] (the CLIs also take the paper's letter: [`Variant::from_cli`]).
     fn from_str(s: &str) -> Result<Self, UnknownName> {
-        let s = s.trim();
-        let letter = s
-            .strip_prefix('(')
-            .and_then(|s| s.strip_suffix(')'))
-            .unwrap_or(s);
         Self::ALL
             .into_iter()
-            .find(|v| v.name() == s || v.alias() == s || letter.chars().eq([v.letter()]))
+            .find(|v| v.name() == s.trim())
             .ok_or(UnknownName {
                 what: "variant",
-                expected: "a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm",
+                expected: "lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm (on a command line also a, b, c, d)",
             })
     }
 }
@@ -291,17 +311,17 @@ pub struct ModelConfig {
     pub variant: Variant,
     /// Whether d(t) is an input of the force LSTM.
     pub force_diff: bool,
-    /// Sample rate the model was trained at, in millihertz (16 700 = 16.7 Hz).
-    pub sample_rate_mhz: u32,
+    /// Sample rate the model was trained at (header: u32 millihertz, 16 700 = 16.7 Hz).
+    pub sample_rate_mhz: Millihertz,
     /// Unit of raw samples.
     pub input_unit: InputUnit,
     /// Raw value (in `input_unit`) that maps to 0 in the Q1.15 input.
     pub input_offset: i32,
     /// Raw span (in `input_unit`) that maps to +1.0 in the Q1.15 input; > 0.
     pub input_full_scale: i32,
-    /// STFT settings; all zero for [`Variant::Force`].
+    /// STFT settings; all zero for [`Variant::Lstm`].
     pub stft: StftConfig,
-    /// Hidden size of each LSTM (second is 0 unless [`Variant::DualLstm`]).
+    /// Hidden size of each LSTM (second is 0 unless [`Variant::LstmStftLstm`]).
     pub hidden: [u16; 2],
     /// Cell state format of each LSTM: c is Q(15-C).C with C = this (1..=15).
     pub cell_frac_bits: [u8; 2],
@@ -344,22 +364,27 @@ impl ModelConfig {
     /// Total features per step (rows of the normalisation table).
     pub fn feature_count(&self) -> usize {
         // d(t) is also allowed as the only non-band input of the STFT variant.
-        let diff_only = matches!(self.variant, Variant::Stft) && self.force_diff;
+        let diff_only = !self.variant.uses_force() && self.force_diff;
         self.force_features() + diff_only as usize + self.band_features()
     }
     /// Input size of LSTM `k`: features are ordered [force, d(t), bands] and the dual variant
     /// splits them after the force path.
     pub fn lstm_inputs(&self, k: usize) -> usize {
-        match (self.variant, k) {
-            (Variant::DualLstm, 0) => self.force_features(),
-            (Variant::DualLstm, 1) => self.band_features(),
-            (_, 0) => self.feature_count(),
-            _ => 0,
+        match self.variant {
+            Variant::Lstm | Variant::StftLstm | Variant::DataStftLstm => match k {
+                0 => self.feature_count(),
+                _ => 0,
+            },
+            Variant::LstmStftLstm => match k {
+                0 => self.force_features(),
+                1 => self.band_features(),
+                _ => 0,
+            },
         }
     }
     /// Sample rate in Hz.
     pub fn sample_rate_hz(&self) -> f32 {
-        self.sample_rate_mhz as f32 / 1000.0
+        self.sample_rate_mhz.hz_f32()
     }
     /// Multiply-accumulates per channel step in the LSTMs and the dense layer (STFT excluded).
     pub fn macs_per_step(&self) -> usize {
@@ -1011,7 +1036,7 @@ fn parse_config(b: &[u8]) -> Result<ModelConfig, BlobError> {
         1 => InputUnit::Counts,
         _ => return Err(BlobError::UnknownField),
     };
-    let sample_rate_mhz = u32_at(b, 20);
+    let sample_rate_mhz = Millihertz(u32_at(b, 20));
     let input_offset = u32_at(b, 24) as i32;
     let input_full_scale = u32_at(b, 28) as i32;
     let shape = match WindowShape::try_from(b[35]) {
@@ -1057,7 +1082,7 @@ fn parse_config(b: &[u8]) -> Result<ModelConfig, BlobError> {
     } else if b[32..36] != [0, 0, 0, 0] {
         return Err(BlobError::InconsistentSizes);
     }
-    if sample_rate_mhz == 0 || input_full_scale <= 0 {
+    if sample_rate_mhz.0 == 0 || input_full_scale <= 0 {
         return Err(BlobError::BadSetting);
     }
     if threshold_q15 == 0 || threshold_q15 > i16::MAX as u16 || raise_after == 0 || clear_after == 0
@@ -1154,7 +1179,7 @@ pub fn write_blob(config: &ModelConfig, tensors: &BlobTensors) -> Vec<u8> {
     });
     h.push(lstm_count as u8);
     h.push(config.input_unit as u8);
-    h.extend_from_slice(&config.sample_rate_mhz.to_le_bytes());
+    h.extend_from_slice(&config.sample_rate_mhz.0.to_le_bytes());
     h.extend_from_slice(&config.input_offset.to_le_bytes());
     h.extend_from_slice(&config.input_full_scale.to_le_bytes());
     if config.variant.uses_bands() {

@@ -4,6 +4,7 @@ use crate::blob::{DenseTensors, ModelConfig};
 use crate::dsp::dot_i8_i16_fast;
 use crate::dsp::sigmoid;
 use crate::fixed::{round_shift_i64, sat_i16_wide};
+use crate::units::Millihertz;
 
 /// p(unstable) = softmax(logits)[1] = σ(l1 - l0), Q0.15, from the concatenated hidden states
 /// `hs` (each Q0.15, one slice per LSTM, of the LSTM's true hidden size).
@@ -202,10 +203,10 @@ impl ContactConfig {
     }
 }
 
-/// `seconds` at `rate_mhz` (millihertz) in whole steps, rounded, 1..=255.
-fn steps_for(seconds: f32, rate_mhz: u32) -> u8 {
-    // rate_mhz / 1000 = steps per second; + 0.5 rounds to nearest.
-    let steps = seconds * rate_mhz as f32 / 1000.0 + 0.5;
+/// `seconds` at `rate` in whole steps, rounded, 1..=255.
+fn steps_for(seconds: f32, rate: Millihertz) -> u8 {
+    // rate.0 / 1000 = steps per second; + 0.5 rounds to nearest.
+    let steps = seconds * rate.0 as f32 / 1000.0 + 0.5;
     (steps as u32).clamp(1, u8::MAX as u32) as u8
 }
 
@@ -392,10 +393,10 @@ mod tests {
         };
         // 1500 counts of 4096 → 1500·8 = 12 000 in Q1.15.
         assert_eq!(ContactConfig::new(&p, -1500, 3, 10).on_q15, 12_000);
-        assert_eq!(steps_for(0.18, 16_667), 3);
-        assert_eq!(steps_for(0.6, 16_667), 10);
-        assert_eq!(steps_for(0.6, 40_000), 24);
-        assert_eq!(steps_for(1000.0, 40_000), 255);
+        assert_eq!(steps_for(0.18, Millihertz(16_667)), 3);
+        assert_eq!(steps_for(0.6, Millihertz(16_667)), 10);
+        assert_eq!(steps_for(0.6, Millihertz(40_000)), 24);
+        assert_eq!(steps_for(1000.0, Millihertz(40_000)), 255);
     }
 
     #[test]

@@ -38,6 +38,7 @@ pub mod model;
 pub mod model_ram;
 pub mod protocol;
 pub mod sample;
+pub mod units;
 
 #[cfg(any(test, feature = "std"))]
 pub mod float;

@@ -19,6 +19,8 @@
 //! nothing here panics on any input.
 
 use crate::blob::CRC32;
+use crate::decision::Q15;
+use crate::units::Millihertz;
 
 /// Protocol version carried in every frame.
 pub const VERSION: u8 = 1;
@@ -36,8 +38,65 @@ pub const MAX_PAYLOAD: usize = HEADER_LEN + 4 + MAX_CHUNK + 4 + CRC_LEN;
 pub const MAX_CHUNK: usize = 128;
 /// Largest frame on the wire: COBS of the largest payload plus the 0x00 delimiter.
 pub const MAX_WIRE: usize = cobs::max_encoding_length(MAX_PAYLOAD) + 1;
-/// p(unstable) value that means "not predicted" (faulted channel, no model, not running).
-pub const P_NONE: u16 = 0xFFFF;
+/// p(unstable) value that means "not predicted" (faulted channel, no model, not running): the
+/// bits of [`PUnstable::NONE`].
+pub const P_NONE: u16 = PUnstable::NONE.to_bits();
+
+/// One channel's p(unstable) in a flag frame: Q0.15 (`0..=32 767`, +1.0 = 32 768, the model's
+/// [`Q15`]) or [`PUnstable::NONE`] (`0xFFFF`) for a channel not predicted on (faulted, not in
+/// contact, no model). The decoder refuses every other value, so [`PUnstable::q15`] is the only
+/// way from the wire to a probability.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(transparent)]
+pub struct PUnstable(u16);
+
+impl PUnstable {
+    /// Not predicted on.
+    pub const NONE: Self = Self(0xFFFF);
+
+    /// A model's p(unstable); negative values (never produced by the sigmoid) send as 0.
+    pub const fn from_q15(p: Q15) -> Self {
+        Self(if p.0 < 0 { 0 } else { p.0 as u16 })
+    }
+
+    /// `Some(p)` → [`Self::from_q15`], `None` → [`Self::NONE`].
+    pub const fn of(p: Option<Q15>) -> Self {
+        match p {
+            Some(p) => Self::from_q15(p),
+            None => Self::NONE,
+        }
+    }
+
+    /// The probability, or `None` for [`Self::NONE`] (and for any bits above 32 767, which the
+    /// decoder never lets through).
+    pub const fn q15(self) -> Option<Q15> {
+        if self.0 <= i16::MAX as u16 {
+            Some(Q15(self.0 as i16))
+        } else {
+            None
+        }
+    }
+
+    /// Whether the channel was not predicted on.
+    pub const fn is_none(self) -> bool {
+        self.0 == Self::NONE.0
+    }
+
+    /// The 16 bits on the wire.
+    pub const fn to_bits(self) -> u16 {
+        self.0
+    }
+
+    /// The value of 16 wire bits, if they are one (`0..=32 767` or `0xFFFF`).
+    pub const fn from_bits(b: u16) -> Option<Self> {
+        if b <= i16::MAX as u16 || b == Self::NONE.0 {
+            Some(Self(b))
+        } else {
+            None
+        }
+    }
+}
 
 /// Declares a module of named `u8` codes and `ALL`, the table of every code with its doc text,
 /// from which the C header (`host-tools/c/slipguard_protocol.h`) is generated.
@@ -432,7 +491,11 @@ const INFO_REPLY_BODY: Body = Body {
             WireType::Bytes(3),
             "firmware version: major, minor, patch",
         ),
-        field("profile", WireType::U8, "sensor profile: 0 hand, 1 suction"),
+        field(
+            "profile",
+            WireType::U8,
+            "sensor profile id (SG_PROFILE_*: slipguard_app::profile::ProfileId)",
+        ),
         field("channels", WireType::U8, "N, channels in flag frames"),
         field("oversample", WireType::U8, "ADC samples per model sample"),
         field(
@@ -659,8 +722,8 @@ pub struct Flags {
     pub overruns: u16,
     /// Frames acquired but never processed since boot (saturating).
     pub skipped: u16,
-    /// p(unstable) per channel, Q0.15 (0..=32767), or [`P_NONE`].
-    pub p: [u16; MAX_CHANNELS],
+    /// p(unstable) per channel, Q0.15, or [`PUnstable::NONE`].
+    pub p: [PUnstable; MAX_CHANNELS],
 }
 
 impl Flags {
@@ -681,13 +744,13 @@ impl Flags {
     }
 
     /// Bit c set: channel c is in contact, i.e. predicted on. A device with a model sends
-    /// [`P_NONE`] exactly for the channels that are faulted or not in contact, so the mask is
-    /// the channels below N whose fault bit is clear and whose p is not [`P_NONE`].
+    /// [`PUnstable::NONE`] exactly for the channels that are faulted or not in contact, so the
+    /// mask is the channels below N whose fault bit is clear and whose p is a probability.
     pub fn contact(&self) -> u16 {
         let n = (self.channels as usize).min(MAX_CHANNELS);
         let mut m = 0;
         for (c, &p) in self.p[..n].iter().enumerate() {
-            if p != P_NONE && self.fault & (1 << c) == 0 {
+            if !p.is_none() && self.fault & (1 << c) == 0 {
                 m |= 1 << c;
             }
         }
@@ -962,7 +1025,8 @@ impl ReplyStatus {
 pub struct Info {
     /// Firmware version (major, minor, patch).
     pub firmware: [u8; 3],
-    /// Sensor profile: 0 hand, 1 suction.
+    /// Sensor profile id: the byte of `slipguard_app::profile::ProfileId` (the registry of
+    /// profiles lives with the front end that runs them, in the app crate).
     pub profile: u8,
     /// Channels in flag frames.
     pub channels: u8,
@@ -976,8 +1040,8 @@ pub struct Info {
     pub model_id: u32,
     /// CRC-32 of the model blob (its fingerprint).
     pub model_crc: u32,
-    /// Model sample rate, mHz (= frame rate).
-    pub sample_rate_mhz: u32,
+    /// Model sample rate (= frame rate; wire: u32 millihertz).
+    pub sample_rate_mhz: Millihertz,
     /// Hidden size of LSTM 0.
     pub hidden: u16,
     /// Threshold in force, Q0.15.
@@ -1256,7 +1320,7 @@ pub fn encode_payload(frame: &Frame, out: &mut [u8]) -> usize {
             w.u16(f.overruns);
             w.u16(f.skipped);
             for &p in &f.p[..n] {
-                w.u16(p);
+                w.u16(p.to_bits());
             }
         }
         Message::Samples(s) => {
@@ -1349,7 +1413,7 @@ pub fn encode_payload(frame: &Frame, out: &mut [u8]) -> usize {
                     w.u16(i.hidden);
                     w.u32(i.model_id);
                     w.u32(i.model_crc);
-                    w.u32(i.sample_rate_mhz);
+                    w.u32(i.sample_rate_mhz.0);
                     w.u16(i.threshold_q15);
                     w.u8(i.raise_after);
                     w.u8(i.clear_after);
@@ -1467,13 +1531,10 @@ pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
                 fault: r.u16(),
                 overruns: r.u16(),
                 skipped: r.u16(),
-                p: [P_NONE; MAX_CHANNELS],
+                p: [PUnstable::NONE; MAX_CHANNELS],
             };
             for p in &mut f.p[..n] {
-                *p = r.u16();
-                if *p > i16::MAX as u16 && *p != P_NONE {
-                    return Err(bad_value);
-                }
+                *p = PUnstable::from_bits(r.u16()).ok_or(bad_value)?;
             }
             let valid = if n == 16 { u16::MAX } else { (1u16 << n) - 1 };
             if f.unstable & !valid != 0 || f.fault & !valid != 0 {
@@ -1615,7 +1676,7 @@ pub fn decode_payload(payload: &[u8]) -> Result<Frame, DecodeError> {
                         hidden: r.u16(),
                         model_id: r.u32(),
                         model_crc: r.u32(),
-                        sample_rate_mhz: r.u32(),
+                        sample_rate_mhz: Millihertz(r.u32()),
                         threshold_q15: r.u16(),
                         raise_after: r.u8(),
                         clear_after: r.u8(),
@@ -1755,6 +1816,11 @@ mod tests {
         b.iter().map(|x| format!("{x:02x}")).collect()
     }
 
+    /// Wire bits (a probability or `P_NONE`) as flag-frame values.
+    fn wire_p(bits: [u16; MAX_CHANNELS]) -> [PUnstable; MAX_CHANNELS] {
+        bits.map(|b| PUnstable::from_bits(b).expect("a wire value"))
+    }
+
     fn flags_example() -> Frame {
         let mut p = [P_NONE; MAX_CHANNELS];
         for (i, v) in p.iter_mut().enumerate().take(4) {
@@ -1771,7 +1837,7 @@ mod tests {
                 fault: 0b0100,
                 overruns: 1,
                 skipped: 0,
-                p,
+                p: wire_p(p),
             }),
         }
     }
@@ -1792,7 +1858,7 @@ mod tests {
                 fault: 0b1000,
                 overruns: 0,
                 skipped: 2,
-                p,
+                p: wire_p(p),
             }),
         }
     }
@@ -2000,7 +2066,7 @@ mod tests {
                 fault: 0,
                 overruns: 0,
                 skipped: 0,
-                p: [0; MAX_CHANNELS],
+                p: [PUnstable::NONE; MAX_CHANNELS],
             }));
             let samples = wire_len(Message::Samples(Samples {
                 timestamp_us: 0,
@@ -2042,7 +2108,7 @@ mod tests {
             variant: 2,
             model_id: 0x5EED_0001,
             model_crc: 0x1234_5678,
-            sample_rate_mhz: 16_700,
+            sample_rate_mhz: Millihertz(16_700),
             hidden: 128,
             threshold_q15: 16384,
             raise_after: 1,
@@ -2076,7 +2142,7 @@ mod tests {
                 fault: 0x8001,
                 overruns: u16::MAX,
                 skipped: u16::MAX,
-                p: full,
+                p: wire_p(full),
             }),
         });
         for msg in [
@@ -2292,7 +2358,7 @@ mod tests {
                                 ("hidden", i.hidden as u64),
                                 ("model_id", i.model_id as u64),
                                 ("model_crc", i.model_crc as u64),
-                                ("sample_rate_mhz", i.sample_rate_mhz as u64),
+                                ("sample_rate_mhz", i.sample_rate_mhz.0 as u64),
                                 ("threshold_q15", i.threshold_q15 as u64),
                                 ("raise_after", i.raise_after as u64),
                                 ("clear_after", i.clear_after as u64),
@@ -2307,9 +2373,9 @@ mod tests {
                 }
             };
             match *msg {
-                Message::Flags(f) => {
-                    e.extend((0..f.channels as usize).map(|c| (format!("p[{c}]"), f.p[c] as u64)))
-                }
+                Message::Flags(f) => e.extend(
+                    (0..f.channels as usize).map(|c| (format!("p[{c}]"), f.p[c].to_bits() as u64)),
+                ),
                 Message::Samples(s) => e.extend(
                     (0..s.channels as usize)
                         .map(|c| (format!("value[{c}]"), s.value[c] as u32 as u64)),

@@ -1,14 +1,15 @@
 //! Sample stage: a raw sensor reading (mN, or converter counts) to the model's Q1.15 input.
 
 use crate::blob::ModelConfig;
+use crate::units::Millihertz;
 
-/// The paper's sample rate, in the blob header's unit (mHz): the paper and its dataset
-/// (eagle-shoal) state 16.7 Hz for their 60 ms step (exactly 1/0.06 s = 16.667 Hz). Every blob,
-/// recording and figure made at the paper's rate carries this value, so it stays 16 700 mHz.
-pub const PAPER_RATE_MHZ: u32 = 16_700;
+/// The paper's sample rate: the paper and its dataset (eagle-shoal) state 16.7 Hz for their
+/// 60 ms step (exactly 1/0.06 s = 16.667 Hz). Every blob, recording and figure made at the
+/// paper's rate carries this value, so it stays 16 700 mHz.
+pub const PAPER_RATE_MHZ: Millihertz = Millihertz(16_700);
 
 /// [`PAPER_RATE_MHZ`] in Hz, as the host tools and recordings write it.
-pub const PAPER_RATE_HZ: f32 = PAPER_RATE_MHZ as f32 / 1000.0;
+pub const PAPER_RATE_HZ: f32 = PAPER_RATE_MHZ.hz_f32();
 
 /// The blob's input scaling: `x = (raw - offset) / full_scale`, saturated to Q1.15.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -174,7 +174,7 @@ fn batch_gated_steps_equal_single_gated_steps_every_variant() {
 /// The benchmark's shape: variant (c), hidden 128, with d(t) (all AVX2 tiles full).
 #[test]
 fn batch_equals_single_variant_c_hidden_128() {
-    let blob = blob_of(Variant::ForceStft, 128, true, 5);
+    let blob = blob_of(Variant::DataStftLstm, 128, true, 5);
     let blob = AlignedBlob::new(&blob);
     let model = Model::from_bytes(blob.as_bytes()).unwrap();
     let x = traces(5);
@@ -186,7 +186,7 @@ fn batch_equals_single_variant_c_hidden_128() {
 /// ChannelState holds, and a RAM image is refused with an error, not run.
 #[test]
 fn batch_refuses_ram_images_and_starts_from_zero() {
-    let blob = blob_of(Variant::Force, 8, true, 3);
+    let blob = blob_of(Variant::Lstm, 8, true, 3);
     let aligned = AlignedBlob::new(&blob);
     let model = Model::from_bytes(aligned.as_bytes()).unwrap();
     let bm = BatchModel::new(&model).unwrap();

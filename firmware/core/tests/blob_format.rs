@@ -39,7 +39,7 @@ fn small_v2() -> (slipguard_core::blob::ModelConfig, BlobTensors) {
 
 /// A small variant (a) model, H = 3, force + d(t), with hand-picked integer tensors.
 fn small() -> (slipguard_core::blob::ModelConfig, BlobTensors) {
-    let mut config = common::config(Variant::Force, 3, true);
+    let mut config = common::config(Variant::Lstm, 3, true);
     config.cell_frac_bits = [11, 0];
     config.name = *b"golden-v1\0\0\0";
     config.threshold_q15 = 19_661; // 0.6
@@ -279,7 +279,7 @@ fn each_kind_of_damage_has_its_own_error() {
 
 #[test]
 fn no_truncation_or_mutation_panics() {
-    let float = common::random_model(Variant::DualLstm, 8, true, 3);
+    let float = common::random_model(Variant::LstmStftLstm, 8, true, 3);
     let (good, _) = slipguard_core::quantize::quantize(&float, &[], None).unwrap();
     for len in 0..good.len() {
         assert!(
@@ -375,7 +375,7 @@ fn golden_bytes_of_a_small_v2_blob() {
 
     // The RAM image keeps the rule (a quantized model: the golden rows cannot be folded, so
     // the golden blob would be copied plainly).
-    let mut float = common::random_model(Variant::Force, 8, true, 5);
+    let mut float = common::random_model(Variant::Lstm, 8, true, 5);
     float.config.hand_rule = Some(rule());
     let (q, _) = slipguard_core::quantize::quantize(&float, &[], None).unwrap();
     assert_eq!(u16::from_le_bytes([q[4], q[5]]), 2);

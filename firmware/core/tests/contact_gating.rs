@@ -23,9 +23,9 @@ fn two_contacts() -> Vec<i32> {
 #[test]
 fn gated_steps_restart_at_each_onset_like_a_fresh_model() {
     for (variant, diff) in [
-        (Variant::ForceStft, true),
-        (Variant::Force, false),
-        (Variant::DualLstm, true),
+        (Variant::DataStftLstm, true),
+        (Variant::Lstm, false),
+        (Variant::LstmStftLstm, true),
     ] {
         let float = common::random_model(variant, 16, diff, 5);
         let calib = [common::smooth_force(3, 300)];

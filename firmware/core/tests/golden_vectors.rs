@@ -39,7 +39,7 @@ fn host_core_reproduces_the_golden_vectors() {
     let dir = std::path::Path::new(DIR);
     if common::blessing() {
         std::fs::create_dir_all(dir).unwrap();
-        let float = common::random_model(Variant::ForceStft, 128, false, 2024);
+        let float = common::random_model(Variant::DataStftLstm, 128, false, 2024);
         let calib: Vec<Vec<f32>> = (0..3).map(|i| common::smooth_force(77 + i, 400)).collect();
         let refs: Vec<&[f32]> = calib.iter().map(|c| c.as_slice()).collect();
         let (blob, _) = quantize(&float, &refs, None).unwrap();

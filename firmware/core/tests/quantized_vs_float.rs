@@ -56,7 +56,7 @@ fn run(variant: Variant, hidden: u16, diff: bool, seed: u64, steps: usize) -> Ag
 
 #[test]
 fn paper_variant_c_hidden_128_over_2000_steps() {
-    let a = run(Variant::ForceStft, 128, false, 11, 2000);
+    let a = run(Variant::DataStftLstm, 128, false, 11, 2000);
     println!(
         "variant (c), H=128, 2000 steps: max|h_q-h_f| = {:.5}, max|p_q-p_f| = {:.5}, flag disagreements {} of {} steps >= 0.02 from the threshold",
         a.max_dh, a.max_dp, a.flag_disagreements, a.compared_flags

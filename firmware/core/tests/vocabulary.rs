@@ -3,6 +3,7 @@
 use slipguard_core::blob::{InputUnit, Variant};
 use slipguard_core::decision::Q15;
 use slipguard_core::features::stft::{StftConfig, WindowShape};
+use slipguard_core::units::Millihertz;
 
 #[test]
 fn names_round_trip_and_unknown_names_say_what_is_accepted() {
@@ -24,7 +25,7 @@ fn names_round_trip_and_unknown_names_say_what_is_accepted() {
     let e = "gru".parse::<Variant>().unwrap_err();
     assert_eq!(
         e.to_string(),
-        "unknown variant (expected a|lstm, b|stft-lstm, c|data-stft-lstm, d|lstm-stft-lstm)"
+        "unknown variant (expected lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm (on a command line also a, b, c, d))"
     );
     for bad in ["", "e", "(c", "cc", "()", "LSTM"] {
         assert!(bad.parse::<Variant>().is_err(), "`{bad}` parsed");
@@ -34,20 +35,24 @@ fn names_round_trip_and_unknown_names_say_what_is_accepted() {
 }
 
 #[test]
-fn variants_parse_from_the_papers_letters_and_the_older_aliases() {
+fn one_name_per_variant_and_the_papers_letters_only_on_a_command_line() {
     let accepted = [
-        (Variant::Force, ["a", "(a)", "lstm", "force"]),
-        (Variant::Stft, ["b", "(b)", "stft-lstm", "stft"]),
-        (
-            Variant::ForceStft,
-            ["c", " (c) ", "data-stft-lstm", "force-stft"],
-        ),
-        (Variant::DualLstm, ["d", "(d)", "lstm-stft-lstm", "dual"]),
+        (Variant::Lstm, "lstm", ["a", "(a)"]),
+        (Variant::StftLstm, "stft-lstm", ["b", "(b)"]),
+        (Variant::DataStftLstm, "data-stft-lstm", ["c", " (c) "]),
+        (Variant::LstmStftLstm, "lstm-stft-lstm", ["d", "(d)"]),
     ];
-    for (v, names) in accepted {
-        for n in names {
-            assert_eq!(n.parse::<Variant>(), Ok(v), "`{n}`");
+    for (v, name, letters) in accepted {
+        assert_eq!(name.parse::<Variant>(), Ok(v));
+        assert_eq!(Variant::from_cli(name), Ok(v));
+        for l in letters {
+            assert_eq!(Variant::from_cli(l), Ok(v), "`{l}`");
+            assert!(l.parse::<Variant>().is_err(), "`{l}` is not a name");
         }
+    }
+    // The older spellings are gone: one name each.
+    for old in ["force", "stft", "force-stft", "dual"] {
+        assert!(Variant::from_cli(old).is_err(), "`{old}` still parses");
     }
 }
 
@@ -55,7 +60,7 @@ fn variants_parse_from_the_papers_letters_and_the_older_aliases() {
 fn paper_rate_is_the_papers_16_7_hz() {
     use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
     // The paper's Fig. 8 caption: "data frequency at 16.7 Hz" (one step every 60 ms).
-    assert_eq!(PAPER_RATE_MHZ, 16_700);
+    assert_eq!(PAPER_RATE_MHZ, Millihertz(16_700));
     assert_eq!(PAPER_RATE_HZ, 16.7);
     assert!((1.0 / 0.06 - f64::from(PAPER_RATE_HZ)).abs() < 0.05);
 }

@@ -33,7 +33,7 @@ use embassy_time::Instant;
 use slipguard_app::app::App;
 use slipguard_app::decimate::RATIO;
 use slipguard_app::frontend::{FrameInput, Frontend};
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::{AdcCode, Profile};
 use slipguard_app::replay::scenario::Scenario;
 use slipguard_app::replay::{self, CHEEZ_TRIAL, EmulatedSensor};
 use slipguard_app::schedule::Deadline;
@@ -186,7 +186,7 @@ async fn adc_task(run: Scenario<'static>) {
     let mut sensor = EmulatedSensor::with_open_wires(profile, replay::cheez_script::OPEN_WIRES);
     #[cfg(feature = "field")]
     let mut sensor = EmulatedSensor::new(profile);
-    let mut scan = [0u16; 16];
+    let mut scan = [AdcCode(0); 16];
     for step in 0..run.trial.steps() {
         for _ in 0..RATIO {
             sensor.scan(&run.trial, step, &mut scan);

@@ -26,7 +26,7 @@ impl fmt::Display for ModelLine<'_> {
             c.name_str(),
             c.variant.name(),
             c.hidden[0],
-            c.sample_rate_mhz,
+            c.sample_rate_mhz.0,
             self.model.blob().len,
             self.model.blob().crc,
             self.default_blob_len
@@ -45,7 +45,7 @@ impl defmt::Format for ModelLine<'_> {
             c.name_str(),
             c.variant.name(),
             c.hidden[0],
-            c.sample_rate_mhz,
+            c.sample_rate_mhz.0,
             self.model.blob().len,
             self.model.blob().crc,
             self.default_blob_len

@@ -19,7 +19,7 @@ use crate::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
 /// The dataset's sample rate: the paper's (60 ms a step, stated as 16.7 Hz).
 pub const EAGLE_RATE_HZ: f32 = slipguard_core::sample::PAPER_RATE_HZ;
 /// [`EAGLE_RATE_HZ`] in mHz, the blob header's unit.
-pub const EAGLE_RATE_MHZ: u32 = slipguard_core::sample::PAPER_RATE_MHZ;
+pub const EAGLE_RATE_MHZ: u32 = slipguard_core::sample::PAPER_RATE_MHZ.0;
 
 #[derive(Debug, Deserialize)]
 struct Meta {

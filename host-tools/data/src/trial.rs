@@ -1,6 +1,7 @@
 //! The one `Trial` type every tool reads: a multi-channel time series of one grasp
 //! with its phase marks, outcome, drop step and per-channel contact flags.
 
+use slipguard_core::units::Millihertz;
 use std::collections::BTreeMap;
 use std::fmt;
 use std::str::FromStr;
@@ -22,6 +23,19 @@ impl fmt::Display for Unit {
             Unit::MilliNewton => f.write_str("mN"),
             Unit::Counts => f.write_str("counts"),
             Unit::Other(s) => f.write_str(s),
+        }
+    }
+}
+
+impl Unit {
+    /// The model input unit these samples are in (a blob header's, a sensor profile's); `None`
+    /// for a unit no model takes.
+    pub fn input_unit(&self) -> Option<slipguard_core::blob::InputUnit> {
+        use slipguard_core::blob::InputUnit;
+        match self {
+            Unit::MilliNewton => Some(InputUnit::MilliNewton),
+            Unit::Counts => Some(InputUnit::Counts),
+            Unit::Other(_) => None,
         }
     }
 }
@@ -297,6 +311,11 @@ impl Trial {
             step_labels: None,
             extra: BTreeMap::new(),
         }
+    }
+
+    /// The sample rate as blob headers and sensor profiles give it (16.7 Hz → 16 700 mHz).
+    pub fn rate_mhz(&self) -> Millihertz {
+        Millihertz::from_hz(self.rate_hz as f64)
     }
 
     pub fn n_channels(&self) -> usize {

@@ -24,6 +24,7 @@
 //! panics with an index of −1 on the 16-channel folds). The SVM's kernel matrix is dense, so its training set
 //! is cut to at most `max_train` evenly spaced steps (a fixed stride, no sampling).
 
+use slipguard_core::units::Millihertz;
 use std::fmt;
 use std::time::Instant;
 
@@ -225,9 +226,9 @@ pub fn feature_config(full_scale_mn: i32, rate_hz: f32) -> ModelConfig {
     ModelConfig {
         model_id: 0,
         name: *b"baselines\0\0\0",
-        variant: Variant::ForceStft,
+        variant: Variant::DataStftLstm,
         force_diff: true,
-        sample_rate_mhz: (rate_hz * 1000.0).round() as u32,
+        sample_rate_mhz: Millihertz::from_hz(rate_hz as f64),
         input_unit: InputUnit::MilliNewton,
         input_offset: 0,
         input_full_scale: full_scale_mn.max(1),

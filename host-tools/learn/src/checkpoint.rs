@@ -10,6 +10,7 @@
 //! Metadata (all strings): see [`keys`]; the same keys as the exporter's settings
 //! (docs/export.md), so `slipguard-export` reads these checkpoints directly.
 
+use slipguard_core::units::Millihertz;
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
@@ -27,8 +28,8 @@ pub use slipguard_core::blob::keys;
 /// PyTorch prefixes of the LSTMs of a variant (the checkpoint's tensor names).
 pub fn lstm_prefixes(variant: Variant) -> &'static [&'static str] {
     match variant {
-        Variant::DualLstm => &["lstm_force", "lstm_bands"],
-        _ => &["lstm"],
+        Variant::Lstm | Variant::StftLstm | Variant::DataStftLstm => &["lstm"],
+        Variant::LstmStftLstm => &["lstm_force", "lstm_bands"],
     }
 }
 
@@ -138,7 +139,7 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> Result<ModelConfig>
     for (d, h) in hidden.iter_mut().zip(&hs) {
         *d = *h;
     }
-    if variant == Variant::DualLstm && hs.len() == 1 {
+    if variant.lstm_count() == 2 && hs.len() == 1 {
         hidden[1] = hidden[0];
     }
     let rate: f64 = num(keys::SAMPLE_RATE_HZ, get(keys::SAMPLE_RATE_HZ)?)?;
@@ -158,7 +159,7 @@ pub fn config_from_metadata(md: &HashMap<String, String>) -> Result<ModelConfig>
         name: name_bytes(md.get(keys::NAME).map(String::as_str).unwrap_or("")),
         variant,
         force_diff: md.get(keys::FORCE_DIFF).is_some_and(|v| v == "true"),
-        sample_rate_mhz: (rate * 1000.0).round() as u32,
+        sample_rate_mhz: Millihertz::from_hz(rate as f64),
         input_unit,
         input_offset: num(keys::INPUT_OFFSET, get(keys::INPUT_OFFSET)?)?,
         input_full_scale: num(keys::INPUT_FULL_SCALE, get(keys::INPUT_FULL_SCALE)?)?,

@@ -9,6 +9,7 @@ use slipguard_core::features::stft::StftConfig;
 use slipguard_core::float::FloatModel;
 use slipguard_core::model::{ChannelState, Model, StepOutput};
 use slipguard_core::quantize::quantize;
+use slipguard_core::units::Millihertz;
 
 use crate::error::Result;
 use slipguard_data::labels::{ChannelSequence, LabelConfig, channel_sequences, label_annotated};
@@ -80,7 +81,7 @@ pub fn force_config(
     force_diff: bool,
     hidden: u16,
     name: &str,
-    rate_mhz: u32,
+    rate_mhz: Millihertz,
 ) -> ModelConfig {
     base_config(
         variant,
@@ -101,7 +102,7 @@ pub fn suction_config(variant: Variant, force_diff: bool, hidden: u16, name: &st
         force_diff,
         hidden,
         name,
-        71_000,
+        Millihertz(71_000),
         InputUnit::Counts,
         6_400,
         40_960,
@@ -114,7 +115,7 @@ fn base_config(
     force_diff: bool,
     hidden: u16,
     name: &str,
-    rate_mhz: u32,
+    rate_mhz: Millihertz,
     unit: InputUnit,
     offset: i32,
     full_scale: i32,
@@ -124,23 +125,16 @@ fn base_config(
         name: crate::checkpoint::name_bytes(name),
         variant,
         force_diff,
-        sample_rate_mhz: rate_mhz,
+        sample_rate_mhz: Millihertz(rate_mhz.0),
         input_unit: unit,
         input_offset: offset,
         input_full_scale: full_scale,
         stft: if variant.uses_bands() {
-            StftConfig::for_rate_mhz(rate_mhz)
+            StftConfig::for_rate_mhz(Millihertz(rate_mhz.0))
         } else {
             StftConfig::NONE
         },
-        hidden: [
-            hidden,
-            if variant == Variant::DualLstm {
-                hidden
-            } else {
-                0
-            },
-        ],
+        hidden: [hidden, if variant.lstm_count() == 2 { hidden } else { 0 }],
         cell_frac_bits: [0, 0],
         threshold_q15: 16_384,
         raise_after: 1,

@@ -1,6 +1,7 @@
 //! Quantization-aware fine-tuning: the forward pass it trains with is the blob's arithmetic.
 use slipguard_core::blob::{AlignedBlob, Variant};
 use slipguard_core::quantize::quantize;
+use slipguard_core::units::Millihertz;
 use slipguard_data::labels::ChannelSequence;
 use slipguard_learn::evaluation::{force_config, sim_force_sequences};
 use slipguard_learn::qat::{QatConfig, blob_agreement, qat_finetune, snap_to_blob_grid};
@@ -15,7 +16,7 @@ use slipguard_learn::train::{TrainConfig, init_model, train};
 fn blob_follows_the_qat_forward_pass() {
     let seqs = sim_force_sequences(5, 6, 0.5, 16.7);
     let data: Vec<&ChannelSequence> = seqs.iter().map(|s| &s.cs).take(12).collect();
-    let config = force_config(Variant::ForceStft, true, 16, "qat", 16_700);
+    let config = force_config(Variant::DataStftLstm, true, 16, "qat", Millihertz(16_700));
     let init = init_model(config, 2, &data);
     let cfg = TrainConfig {
         epochs: 6,
@@ -72,8 +73,12 @@ fn blob_follows_the_qat_forward_pass() {
 fn snapped_weights_quantize_to_the_same_blob_weights() {
     let seqs = sim_force_sequences(5, 2, 0.5, 16.7);
     let data: Vec<&ChannelSequence> = seqs.iter().map(|s| &s.cs).collect();
-    for v in [Variant::ForceStft, Variant::DualLstm] {
-        let m = init_model(force_config(v, true, 16, "snap", 16_700), 4, &data);
+    for v in [Variant::DataStftLstm, Variant::LstmStftLstm] {
+        let m = init_model(
+            force_config(v, true, 16, "snap", Millihertz(16_700)),
+            4,
+            &data,
+        );
         let s = snap_to_blob_grid(&m);
         assert_ne!(s.lstms[0].w_hh, m.lstms[0].w_hh);
         let (a, _) = quantize(&m, &[], Some([11, 11])).unwrap();
@@ -100,7 +105,7 @@ fn snapped_weights_quantize_to_the_same_blob_weights() {
 fn qat_keeps_the_epoch_closest_to_its_blob_when_none_is_within_the_bound() {
     let seqs = sim_force_sequences(7, 4, 0.5, 16.7);
     let data: Vec<&ChannelSequence> = seqs.iter().map(|s| &s.cs).take(8).collect();
-    let config = force_config(Variant::ForceStft, true, 8, "qat", 16_700);
+    let config = force_config(Variant::DataStftLstm, true, 8, "qat", Millihertz(16_700));
     let init = init_model(config, 3, &data);
     let cfg = TrainConfig {
         epochs: 3,

@@ -1,4 +1,5 @@
 //! Trainer, checkpoints, evaluation and the shipped models.
+use slipguard_core::units::Millihertz;
 use std::path::Path;
 
 use slipguard_core::blob::{AlignedBlob, Variant};
@@ -60,7 +61,7 @@ fn toy(n: usize, len: usize) -> Vec<ChannelSequence> {
 fn a_few_epochs_reduce_the_loss() {
     let data = toy(8, 40);
     let refs: Vec<&ChannelSequence> = data.iter().collect();
-    let config = force_config(Variant::ForceStft, true, 8, "toy", 16_700);
+    let config = force_config(Variant::DataStftLstm, true, 8, "toy", Millihertz(16_700));
     let init = init_model(config, 3, &refs);
     let cfg = TrainConfig {
         epochs: 8,
@@ -91,7 +92,7 @@ fn label_shift_moves_the_unstable_region() {
 fn checkpoint_round_trip_every_variant() {
     for v in Variant::ALL {
         for cfg in [
-            force_config(v, true, 12, "rt", 16_700),
+            force_config(v, true, 12, "rt", Millihertz(16_700)),
             suction_config(v, false, 8, "s"),
         ] {
             let mut model = FloatModel::init_like_pytorch(cfg, 7);
@@ -117,7 +118,7 @@ fn checkpoint_round_trip_every_variant() {
     // PyTorch names.
     let ck = Checkpoint {
         model: FloatModel::init_like_pytorch(
-            force_config(Variant::DualLstm, false, 4, "d", 16_700),
+            force_config(Variant::LstmStftLstm, false, 4, "d", Millihertz(16_700)),
             1,
         ),
         extra: Default::default(),
@@ -146,8 +147,10 @@ fn checkpoint_round_trip_every_variant() {
 #[test]
 fn metrics_of_a_hand_made_always_unstable_model() {
     // Zero weights, dense bias favouring "unstable": p = σ(2) ≈ 0.88 at every step.
-    let mut m =
-        FloatModel::init_like_pytorch(force_config(Variant::Force, false, 4, "hm", 16_700), 1);
+    let mut m = FloatModel::init_like_pytorch(
+        force_config(Variant::Lstm, false, 4, "hm", Millihertz(16_700)),
+        1,
+    );
     for l in &mut m.lstms {
         l.w_ih.iter_mut().for_each(|w| *w = 0.0);
         l.w_hh.iter_mut().for_each(|w| *w = 0.0);

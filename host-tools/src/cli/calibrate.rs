@@ -12,7 +12,7 @@ use slipguard_core::decision::{HandConfig, Q15};
 use slipguard_core::model::Model;
 use slipguard_data::armed::{ArmedGrasp, ArmedReport};
 use slipguard_data::labels::LabelConfig;
-use slipguard_data::{Outcome, Trial, Unit};
+use slipguard_data::{Outcome, Trial};
 use slipguard_learn::product::{self, CurvePoint, WindowedRun};
 
 use super::check;
@@ -92,11 +92,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let first = trials
         .first()
         .ok_or_else(|| anyhow::anyhow!("{}: no recordings", path.display()))?;
-    let profile = match first.unit {
-        Unit::Counts => slipguard_app::profile::Profile::SUCTION,
-        _ => slipguard_app::profile::Profile::HAND,
-    };
-    let rate_mhz = (first.rate_hz * 1000.0).round() as u32;
+    let profile = slipguard::replay::profile_for(first, &path.display().to_string())?;
+    let rate_mhz = first.rate_mhz();
     let model_path = a
         .model
         .clone()
@@ -109,7 +106,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         c.sample_rate_mhz == rate_mhz,
         "{}: the model runs at {} Hz, but {} is recorded at {} Hz ({}): give the model for that rate (--model)",
         model_path.display(),
-        c.sample_rate_mhz as f64 / 1000.0,
+        c.sample_rate_mhz.hz(),
         path.display(),
         first.rate_hz,
         first.id

@@ -7,8 +7,9 @@ use std::path::Path;
 
 use anyhow::bail;
 use slipguard::replay::{check_blob, load_blob};
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::{Profile, ProfileId};
 use slipguard_core::blob::{AlignedBlob, ModelConfig};
+use slipguard_core::units::Millihertz;
 
 /// clap parser: an integer in `lo..=hi` as `usize` (clap's ranged parsers stop at u64).
 macro_rules! usize_in {
@@ -97,17 +98,21 @@ pub fn blob_name(s: &str) -> Result<String, String> {
     }
 }
 
+/// clap parser: a sensor profile's name in the registry (`hand`, `suction`; the help lists them).
+pub fn profile_id() -> impl clap::builder::TypedValueParser<Value = ProfileId> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(ProfileId::ALL.map(ProfileId::name))
+        .try_map(|s: String| s.parse::<ProfileId>())
+}
+
 /// A frame rate in Hz that one of the sensor profiles runs (`--rate-hz`, `--rate`).
-pub fn profile_rate(flag: &str, rate_hz: f64, profiles: &[Profile]) -> anyhow::Result<u32> {
+pub fn profile_rate(flag: &str, rate_hz: f64, profiles: &[Profile]) -> anyhow::Result<Millihertz> {
     let mhz = (rate_hz * 1000.0).round();
-    let ok: Vec<u32> = profiles.iter().flat_map(|p| p.rates_mhz).copied().collect();
-    if rate_hz.is_finite() && ok.iter().any(|&r| r as f64 == mhz) {
-        return Ok(mhz as u32);
+    let ok: Vec<Millihertz> = profiles.iter().flat_map(|p| p.rates_mhz).copied().collect();
+    if rate_hz.is_finite() && ok.iter().any(|&r| r.0 as f64 == mhz) {
+        return Ok(Millihertz(mhz as u32));
     }
-    let list: Vec<String> = ok
-        .iter()
-        .map(|r| format!("{}", *r as f64 / 1000.0))
-        .collect();
+    let list: Vec<String> = ok.iter().map(|r| format!("{}", r.hz())).collect();
     bail!(
         "{flag} {rate_hz}: the sensor profile runs {} Hz only",
         list.join(" or ")

@@ -1,6 +1,7 @@
 //! `slipguard closed-loop`: drop rate with prediction off vs on, over seeded trials of the
 //! paper's four situations, per model.
 
+use slipguard_core::units::Millihertz;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -106,7 +107,7 @@ struct Source {
     /// `Some(delay in frames)`: the perfect detector.
     oracle: Option<usize>,
     /// Frame rate (mHz): the model's, for the oracle the rate it stands beside.
-    rate_mhz: u32,
+    rate_mhz: Millihertz,
     /// With a blob: fused with this rule and guard (Q0.15).
     fused: Option<slipguard_core::decision::FusedHand>,
     /// The hand-load rule with the model's input scale and contact gate at that rate.
@@ -174,12 +175,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 let rule = slipguard_learn::load_rule::rule(
                     a.rule_fraction,
                     a.rule_window_ms as f64 / 1000.0,
-                    1e6 / rate_mhz as f64,
+                    1e6 / rate_mhz.0 as f64,
                 );
                 rule_sources.push(Source {
                     name: format!(
                         "load rule {} Hz (< {:.2} of the peak over {} frames)",
-                        rate_mhz as f64 / 1000.0,
+                        rate_mhz.hz(),
                         a.rule_fraction,
                         rule.window
                     ),
@@ -216,7 +217,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 a.rule_fraction,
                 g,
                 a.rule_window_ms as f64 / 1000.0,
-                1e6 / rate_mhz as f64,
+                1e6 / rate_mhz.0 as f64,
             );
             sources.push(Source {
                 name: format!(
@@ -246,7 +247,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             for delay in std::iter::once(0).chain(a.oracle_delay.iter().copied()) {
                 let mut name = "oracle".to_string();
                 if rates.len() > 1 {
-                    name += &format!(" {} Hz", rate_mhz as f64 / 1000.0);
+                    name += &format!(" {} Hz", rate_mhz.hz());
                 }
                 if delay > 0 {
                     name += &format!(", {delay} frame{} late", if delay > 1 { "s" } else { "" });
@@ -302,7 +303,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         100.0 * a.step,
         rates
             .iter()
-            .map(|r| format!("{}", *r as f64 / 1000.0))
+            .map(|r| format!("{}", (*r).hz()))
             .collect::<Vec<_>>()
             .join(" / ")
     );

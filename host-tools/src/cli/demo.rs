@@ -109,7 +109,7 @@ fn describe(c: &ModelConfig) -> String {
     format!(
         "{sensor}, {} Hz, variant {}, hidden {hidden}; flags at p(unstable) ≥ {:.2} for {} \
          step(s){fused}",
-        c.sample_rate_mhz as f64 / 1000.0,
+        c.sample_rate_mhz.hz(),
         c.variant,
         c.threshold_q15 as f64 / 32768.0,
         c.raise_after,
@@ -290,7 +290,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let real = cut_to_contact(labelled, &rule);
     let armed = super::eval::armed_rows_for_blob("hand-force", &hand.bytes, &trials, true)?;
 
-    let rate40 = hand40_cfg.sample_rate_mhz as f32 / 1000.0;
+    let rate40 = hand40_cfg.sample_rate_mhz.hz_f32();
     let runs = [
         Run {
             model: &hand,

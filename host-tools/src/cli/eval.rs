@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use slipguard::plot::plot_prediction;
+use slipguard_app::profile::ProfileQuery;
 use slipguard_core::blob::InputUnit;
 use slipguard_core::decision::{DecisionConfig, Q15};
 use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
@@ -95,10 +96,12 @@ fn load_member(p: &Path, allow_bad: bool) -> anyhow::Result<(Checkpoint, Option<
     let bin = ck_path.with_extension("bin");
     let blob = if bin.exists() {
         let b = std::fs::read(&bin).with_context(|| format!("reading {}", bin.display()))?;
-        let profile = match ck.model.config.input_unit {
-            InputUnit::Counts => slipguard_app::profile::Profile::SUCTION,
-            _ => slipguard_app::profile::Profile::HAND,
-        };
+        let c = &ck.model.config;
+        let profile = slipguard_app::profile::Profile::lookup(ProfileQuery::unit_rate(
+            c.input_unit,
+            c.sample_rate_mhz,
+        ))
+        .with_context(|| format!("{}", ck_path.display()))?;
         match slipguard::replay::check_blob(
             &profile,
             slipguard_core::blob::AlignedBlob::new(&b).as_bytes(),
@@ -335,13 +338,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     // The recordings' rate and unit (one per data set, the loader checks) decide which models
     // they evaluate; a model at another rate or unit is refused for a --data folder.
-    let data_key = real_trials.first().map(|t| {
-        let unit = match t.unit {
-            slipguard_data::Unit::Counts => InputUnit::Counts,
-            _ => InputUnit::MilliNewton,
-        };
-        ((t.rate_hz * 1000.0).round() as u32, unit)
-    });
+    let data_key = real_trials
+        .first()
+        .map(|t| {
+            let profile = slipguard::replay::profile_for(t, &t.id)?;
+            anyhow::Ok((t.rate_mhz(), profile.unit))
+        })
+        .transpose()?;
     let fits_data = |g: &Group| {
         data_key.is_some_and(|(r, u)| {
             g.members
@@ -356,17 +359,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         anyhow::bail!(
             "{}: a {} Hz model in {}, but {} holds {} Hz recordings in {u}: evaluate it on recordings at its rate and unit",
             g.name,
-            c.sample_rate_mhz as f64 / 1000.0,
+            c.sample_rate_mhz.hz(),
             c.input_unit,
             d.display(),
-            r as f64 / 1000.0
+            r.hz()
         );
     }
     let data_rate_mhz = data_key.map_or(PAPER_RATE_MHZ, |k| k.0);
     // The paper's metrics on the sequences the firmware's model state sees: from each
     // channel's contact onset (the data's sensor and rate).
     let force_rule = OnsetRule::of(&slipguard_learn::evaluation::force_config(
-        slipguard_core::blob::Variant::Force,
+        slipguard_core::blob::Variant::Lstm,
         false,
         1,
         "",
@@ -375,21 +378,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let data_rule = match data_key {
         Some((_, InputUnit::Counts)) => {
             OnsetRule::of(&slipguard_learn::evaluation::suction_config(
-                slipguard_core::blob::Variant::Force,
+                slipguard_core::blob::Variant::Lstm,
                 false,
                 1,
                 "",
             ))
         }
         _ => OnsetRule::of(&slipguard_learn::evaluation::force_config(
-            slipguard_core::blob::Variant::Force,
+            slipguard_core::blob::Variant::Lstm,
             false,
             1,
             "",
             data_rate_mhz,
         )),
     };
-    let data_label = LabelConfig::default().scaled_to(data_rate_mhz as f32 / 1000.0);
+    let data_label = LabelConfig::default().scaled_to(data_rate_mhz.hz_f32());
     let real = product::cut_to_contact(sequences_of(&real_trials, &data_label), &data_rule);
     let needs = |u: InputUnit| {
         groups.iter().any(|g| {
@@ -408,7 +411,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let sim_s = if needs(InputUnit::Counts) {
         let rule = OnsetRule::of(&slipguard_learn::evaluation::suction_config(
-            slipguard_core::blob::Variant::Force,
+            slipguard_core::blob::Variant::Lstm,
             false,
             1,
             "",
@@ -621,7 +624,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 /// The contact onset rule of 16.7 Hz force models.
 fn force_onset_rule() -> OnsetRule {
     OnsetRule::of(&slipguard_learn::evaluation::force_config(
-        slipguard_core::blob::Variant::Force,
+        slipguard_core::blob::Variant::Lstm,
         false,
         1,
         "",

@@ -193,7 +193,8 @@ fn message_line(m: &Message) -> String {
                     i.firmware[0],
                     i.firmware[1],
                     i.firmware[2],
-                    if i.profile == 1 { "suction" } else { "hand" },
+                    slipguard_app::profile::ProfileId::from_u8(i.profile)
+                        .map_or("unknown", |p| p.name()),
                     i.channels,
                     if i.model_ok == 1 { "ok" } else { "refused" },
                     i.model_id,

@@ -1,5 +1,6 @@
 //! `slipguard replay`: a trial through the firmware's exact path; the frames it would send.
 
+use slipguard_core::units::Millihertz;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -9,23 +10,13 @@ use clap::{Parser, ValueEnum};
 use slipguard::replay::{self, Scheduled};
 
 use super::check;
-use slipguard_app::profile::Profile;
+use slipguard_app::profile::ProfileId;
 use slipguard_app::replay::OpenWire;
 use slipguard_core::protocol::{Command, Message};
 use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
 use slipguard_data::eagle::read_tactile_csv;
 use slipguard_data::labels::{LabelConfig, annotate};
 use slipguard_data::trial::{Outcome, PhaseMarks, SensorKind, Trial, Unit};
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ProfileArg {
-    /// From the trial: counts with ≤ 4 channels → suction, else hand.
-    Auto,
-    /// 16 fingertip force channels (mN).
-    Hand,
-    /// 4 suction-cup pressure channels (counts).
-    Suction,
-}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Script {
@@ -51,9 +42,11 @@ pub struct Args {
     /// models/suction/*.bin; else the golden untrained blob).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Sensor profile.
-    #[arg(long, value_enum, default_value_t = ProfileArg::Auto)]
-    pub profile: ProfileArg,
+    /// Sensor profile (default: the one profile that takes the trial's unit, rate and channel
+    /// count; hand: 16 force channels in mN at 16.7 or 40 Hz, suction: 4 pressure channels in
+    /// counts at 71 Hz).
+    #[arg(long, value_parser = check::profile_id())]
+    pub profile: Option<ProfileId>,
     /// Rate of a plain tactile.csv, Hz (> 0).
     #[arg(long, default_value_t = PAPER_RATE_HZ, allow_negative_numbers = true, value_parser = check::positive_f32)]
     pub rate: f32,
@@ -276,14 +269,20 @@ fn run_one(
     log: &mut Log,
 ) -> anyhow::Result<()> {
     let trial = trial.clone();
-    let profile = match a.profile {
-        ProfileArg::Auto => replay::profile_for(&trial),
-        ProfileArg::Hand => Profile::HAND,
-        ProfileArg::Suction => Profile::SUCTION,
+    // The file when one was given, the trial's id within a folder.
+    let name = if a.trial.is_file() {
+        a.trial.display().to_string()
+    } else {
+        trial.id.clone()
     };
-    let model = a.model.clone().unwrap_or_else(|| {
-        replay::default_model_for(&profile, (trial.rate_hz * 1000.0).round() as u32)
-    });
+    let profile = match a.profile {
+        None => replay::profile_for(&trial, &name)?,
+        Some(id) => id.profile(),
+    };
+    let model = a
+        .model
+        .clone()
+        .unwrap_or_else(|| replay::default_model_for(&profile, trial.rate_mhz()));
     if let Some(c) = a.plot_channel
         && c >= profile.channels
     {
@@ -309,12 +308,6 @@ fn run_one(
     // The model takes the profile's channels: a trial with more (they would be dropped) or
     // fewer (they would be zero force) is refused.
     if trial.n_channels() != profile.channels {
-        // The file when one was given, the trial's id within a folder.
-        let name = if a.trial.is_file() {
-            a.trial.display().to_string()
-        } else {
-            trial.id.clone()
-        };
         bail!(
             "{}: {} channels, the {} profile has {} (give --profile, or a trial with {} channels)",
             name,
@@ -329,10 +322,10 @@ fn run_one(
         log.line(format!("replay: note: {note}"));
     }
     let rate_mhz = match replay::check_rate(&trial, blob.as_bytes()) {
-        Ok(r) => r.unwrap_or(profile.default_rate_mhz()),
+        Ok(r) => r.unwrap_or(profile.default_rate_mhz().0),
         Err(e) if a.any_rate => {
             log.line(format!("replay: warning: {e}"));
-            (trial.rate_hz * 1000.0).round() as u32
+            trial.rate_mhz().0
         }
         Err(e) => bail!("{e} (use --any-rate to replay anyway)"),
     };
@@ -428,7 +421,7 @@ fn run_one(
         None => {}
     }
     if let Some(png) = png {
-        let flags = replay::flags_by_frame(&frames, rate_mhz, trial.n_steps());
+        let flags = replay::flags_by_frame(&frames, Millihertz(rate_mhz), trial.n_steps());
         let title = format!(
             "{} ({}), model {}",
             trial.id,

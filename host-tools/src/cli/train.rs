@@ -1,5 +1,6 @@
 //! `slipguard train`: the paper's four variants with candle; cross-validation by trial,
 //! simulated pre-training and mixing, float checkpoints and quantized blobs.
+use slipguard_core::units::Millihertz;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -219,10 +220,7 @@ pub fn parse_variants(s: &str) -> anyhow::Result<Vec<Variant>> {
         return Ok(Variant::ALL.to_vec());
     }
     s.split(',')
-        .map(|v| {
-            v.parse::<Variant>()
-                .with_context(|| format!("--variant `{}`", v.trim()))
-        })
+        .map(|v| Variant::from_cli(v).with_context(|| format!("--variant `{}`", v.trim())))
         .collect()
 }
 
@@ -666,7 +664,7 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
         let profile = profile_of(a.sensor);
         a.rate_hz = match (a.rate_arg, a.sensor) {
             (Some(r), _) => r,
-            (None, Sensor::Suction) => profile.default_rate_mhz() as f32 / 1000.0,
+            (None, Sensor::Suction) => profile.default_rate_mhz().hz_f32(),
             (None, Sensor::Force) => PAPER_RATE_HZ,
         };
         check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
@@ -778,10 +776,10 @@ fn blob_name_of(a: &Args, name: &str, v: Variant) -> String {
         }
     }
     match v {
-        Variant::Force => "lstm",
-        Variant::Stft => "stft",
-        Variant::ForceStft => "data+stft",
-        Variant::DualLstm => "dual",
+        Variant::Lstm => "lstm",
+        Variant::StftLstm => "stft",
+        Variant::DataStftLstm => "data+stft",
+        Variant::LstmStftLstm => "dual",
     }
     .to_string()
 }
@@ -817,13 +815,13 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     let run = Run { a: &a, tc, command };
     let t_all = Instant::now();
     // Data.
-    let rate_mhz = (a.rate_hz * 1000.0).round() as u32;
+    let rate_mhz = Millihertz::from_hz(a.rate_hz as f64);
     let cl_cfg = ClosedLoopTraining {
         rate_mhz,
         lead_s: a.closed_loop_lead,
         false_alarm_hz: a.closed_loop_false_alarms,
         policy: match &a.closed_loop_policy {
-            Some(p) => Some(policy_blob(p, rate_mhz)?),
+            Some(p) => Some(policy_blob(p, rate_mhz.0)?),
             None => None,
         },
         policy_share: a.closed_loop_policy_share,
@@ -897,8 +895,8 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         (real, sim_pre, sim_mix, cl_mix)
     } else {
         let probe = match a.sensor {
-            Sensor::Force => ev::force_config(Variant::Force, false, 1, "", cl_cfg.rate_mhz),
-            Sensor::Suction => ev::suction_config(Variant::Force, false, 1, ""),
+            Sensor::Force => ev::force_config(Variant::Lstm, false, 1, "", cl_cfg.rate_mhz),
+            Sensor::Suction => ev::suction_config(Variant::Lstm, false, 1, ""),
         };
         let rule = OnsetRule::of(&probe);
         let n0 = real.len() + sim_pre.len() + sim_mix.len() + cl_mix.len();
@@ -982,10 +980,10 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
                 "--init {}: a {} model at {} Hz in {}, not the {} at {} Hz in {} being trained",
                 p.display(),
                 ck.model.config.variant.name(),
-                ck.model.config.sample_rate_mhz as f64 / 1000.0,
+                ck.model.config.sample_rate_mhz.hz(),
                 ck.model.config.input_unit,
                 v.name(),
-                config.sample_rate_mhz as f64 / 1000.0,
+                config.sample_rate_mhz.hz(),
                 config.input_unit
             );
             let mut m = ck.model;
@@ -1195,10 +1193,10 @@ fn policy_blob(path: &Path, rate_mhz: u32) -> anyhow::Result<slipguard_core::blo
         .map_err(|e| anyhow::anyhow!("--closed-loop-policy {}: {e}", path.display()))?;
     let got = model.config().sample_rate_mhz;
     anyhow::ensure!(
-        got == rate_mhz,
+        got == Millihertz(rate_mhz),
         "--closed-loop-policy {} runs at {} Hz, not the --rate-hz {} Hz being trained",
         path.display(),
-        got as f64 / 1000.0,
+        got.hz(),
         rate_mhz as f64 / 1000.0
     );
     Ok(blob)

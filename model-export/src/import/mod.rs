@@ -318,8 +318,8 @@ pub fn assemble(imp: &Imported, res: &Resolved) -> Result<(FloatModel, bool)> {
         let want = config.lstm_inputs(k);
         if l.lstm.input != want {
             let what = match (variant, k) {
-                (Variant::DualLstm, 0) => "the force path".to_string(),
-                (Variant::DualLstm, _) => "the STFT bands".to_string(),
+                (Variant::LstmStftLstm, 0) => "the force path".to_string(),
+                (Variant::LstmStftLstm, _) => "the STFT bands".to_string(),
                 _ => format!("variant {}", variant.name()),
             };
             return Err(ExportError::shape(

@@ -7,7 +7,7 @@
 //! Each feature is then normalised, `(v - μ) / σ` in Q3.12 (saturated at ±8σ), with μ and σ
 //! from training; the normalisation is part of the model so that int16 inputs keep their
 //! resolution whatever the feature's natural scale (band magnitudes are ~100× smaller than the
-//! force). [`Variant::DualLstm`](crate::blob::Variant) feeds `[force, d(t)]` to its first LSTM
+//! force). [`Variant::LstmStftLstm`](crate::blob::Variant) feeds `[force, d(t)]` to its first LSTM
 //! and the bands to its second.
 
 pub mod stft;

@@ -85,6 +85,7 @@
 use crate::const_math::{cos_sin_turn, round};
 use crate::features::MAX_BANDS;
 use crate::fixed::{round_shift_i64, sat_i16, sat_i16_wide};
+use crate::units::Millihertz;
 
 /// Longest STFT window. The per-channel state is a ring buffer of this many `i16` samples,
 /// which must stay within 128 bytes.
@@ -199,7 +200,7 @@ impl StftConfig {
     /// 1.2 s (48-sample at 40 Hz) window did not detect better across seeds and costs 2.4× the
     /// DFT work per step, and 1.2 s at 71 Hz (85 samples) is over [`MAX_WINDOW`]
     /// (docs/model-format.md, "STFT per rate").
-    pub const fn for_rate_mhz(_rate_mhz: u32) -> StftConfig {
+    pub const fn for_rate_mhz(_rate: Millihertz) -> StftConfig {
         Self::PAPER
     }
 
@@ -621,14 +622,17 @@ mod tests {
     fn the_set_up_per_rate_is_valid_and_its_bands_are_below_nyquist() {
         // The profiles' rates (hand 16.7 and 40 Hz, suction 71 Hz).
         for rate_mhz in [16_700u32, 40_000, 71_000] {
-            let c = StftConfig::for_rate_mhz(rate_mhz);
+            let c = StftConfig::for_rate_mhz(Millihertz(rate_mhz));
             assert_eq!(c.validate(), Ok(()), "{rate_mhz}");
             // Bin k is centred on k·f_s/N: the last band stays at or below f_s/2.
             let last = (c.first_bin + c.n_bins - 1) as f64 * rate_mhz as f64 / c.window_len as f64;
             assert!(last <= rate_mhz as f64 / 2.0, "{rate_mhz}");
         }
         // At the paper's rate it is the paper's set-up: 20 samples = 1.2 s, bins 1..=10.
-        assert_eq!(StftConfig::for_rate_mhz(16_700), StftConfig::PAPER);
+        assert_eq!(
+            StftConfig::for_rate_mhz(Millihertz(16_700)),
+            StftConfig::PAPER
+        );
     }
 
     fn bound_lsb(n: usize) -> f64 {

@@ -5,16 +5,17 @@ use rand::{Rng, SeedableRng};
 use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
 use slipguard_core::features::stft::StftConfig;
 use slipguard_core::float::FloatModel;
+use slipguard_core::units::Millihertz;
 
 /// Header of a fingertip-force model as the paper sets it up (16.7 Hz, 0..10 000 mN).
 pub fn config(variant: Variant, hidden: u16, force_diff: bool) -> ModelConfig {
-    let dual = variant == Variant::DualLstm;
+    let dual = variant == Variant::LstmStftLstm;
     ModelConfig {
         model_id: 0x5eed_0001,
         name: *b"test\0\0\0\0\0\0\0\0",
         variant,
         force_diff,
-        sample_rate_mhz: 16_700,
+        sample_rate_mhz: Millihertz(16_700),
         input_unit: InputUnit::MilliNewton,
         input_offset: 0,
         input_full_scale: 10_000,
