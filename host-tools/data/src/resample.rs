@@ -21,10 +21,11 @@
 //! non-zero baseline, and zero padding would ring at the ends).
 //!
 //! **Marks and labels**: a step index `m` (grasp start, lift, third mark, release, drop step,
-//! slip onset) becomes the output step nearest to its time, `round(m · rate_out / rate_in)`
-//! (at most half an output step, 12.5 ms at 40 Hz, from the same second); each output step's
-//! stability label is the one of the input step nearest to its time. Per-channel contact flags
-//! are kept. A hand-written kernel: the one offline interpolation is shorter than driving a
+//! slip onset) becomes the first output step at or after its time, `ceil(m · rate_out /
+//! rate_in)` (less than one output step, 25 ms at 40 Hz, after the same second); each output
+//! step's stability label is the one of the last input step at or before its time, so a label
+//! change lands on the same output step as a mark at that input step. Per-channel contact
+//! flags are kept. A hand-written kernel: the one offline interpolation is shorter than driving a
 //! streaming resampler crate chunk by chunk with its delay compensation (docs/model-format.md,
 //! "Resampling recordings").
 
@@ -69,9 +70,15 @@ pub fn output_len(n_in: usize, rate_in: f64, rate_out: f64) -> usize {
     ((n_in - 1) as f64 * rate_out / rate_in + 1e-9).floor() as usize + 1
 }
 
-/// Output step nearest in time to input step `m`, within `0..n_out`.
+/// First output step at or after the time of input step `m`, within `0..n_out` (the epsilon
+/// keeps an instant that falls exactly on `m`'s time from moving a step on by rounding).
 pub fn map_step(m: usize, rate_in: f64, rate_out: f64, n_out: usize) -> usize {
-    ((m as f64 * rate_out / rate_in).round() as usize).min(n_out.saturating_sub(1))
+    ((m as f64 * rate_out / rate_in - 1e-9).ceil().max(0.0) as usize).min(n_out.saturating_sub(1))
+}
+
+/// Last input step at or before the time of output step `k`, within `0..n_in`.
+pub fn source_step(k: usize, rate_in: f64, rate_out: f64, n_in: usize) -> usize {
+    ((k as f64 * rate_in / rate_out + 1e-9).floor() as usize).min(n_in.saturating_sub(1))
 }
 
 fn sinc(x: f64) -> f64 {
@@ -146,7 +153,7 @@ pub fn to_rate(trial: &Trial, rate_hz: f32) -> Result<Trial, ResampleError> {
     out.slip_onset_step = map(trial.slip_onset_step);
     out.step_labels = trial.step_labels.as_ref().map(|l| {
         (0..n_out)
-            .map(|k| l[map_step(k, r_out, r_in, n_in)])
+            .map(|k| l[source_step(k, r_in, r_out, n_in)])
             .collect()
     });
     out.extra
@@ -260,23 +267,26 @@ mod tests {
             (t.drop_step, r.drop_step),
         ] {
             let (a, b) = (a.unwrap(), b.unwrap());
+            let late = secs(b, 40.0) - secs(a, PAPER);
             assert!(
-                (secs(a, PAPER) - secs(b, 40.0)).abs() <= 0.5 / 40.0 + 1e-9,
+                (0.0..1.0 / 40.0).contains(&late),
                 "step {a} at 16.7 Hz ({} s) became {b} at 40 Hz ({} s)",
                 secs(a, PAPER),
                 secs(b, 40.0)
             );
         }
-        // Step 30 = 1.796 s = step 71.86 at 40 Hz → 72; drop 121 = 7.246 s = 289.8 → 290.
+        // Step 30 = 1.796 s = step 71.86 at 40 Hz → 72; drop 121 = 7.246 s = 289.8 → 290:
+        // the first 40 Hz steps at or after them.
         assert_eq!(r.marks.grasp_start, Some(72));
         assert_eq!(r.drop_step, Some(290));
-        // Each output step takes the label of the input step nearest in time, round(k · 16.7 /
-        // 40): labelled from k = 71 (input 29.6 → 30), unstable from k = 241 (input 100.6 → 101).
+        // Each output step takes the label of the last input step at or before it,
+        // floor(k · 16.7 / 40): labelled from k = 72 (input 30.06 → 30, with the grasp mark),
+        // unstable from k = 242 (input 101.04 → 101; k = 241 is input 100.6 → 100).
         let l = r.step_labels.as_ref().unwrap();
-        assert_eq!(l.iter().position(Option::is_some), Some(71));
+        assert_eq!(l.iter().position(Option::is_some), Some(72));
         assert_eq!(
             l.iter().position(|s| *s == Some(Stability::Unstable)),
-            Some(241)
+            Some(242)
         );
         assert_eq!(
             r.extra.get("resampled_from_hz").map(String::as_str),
