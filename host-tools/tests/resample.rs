@@ -157,3 +157,22 @@ fn bad_input_is_refused_in_one_line() {
     assert!(!resample(&src, "-40", &dir.join("c")).status.success());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn help_has_an_example_and_describes_every_option() {
+    let out = slipguard().args(["resample", "--help"]).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("Example:\n  slipguard resample "), "{text}");
+    let lines: Vec<&str> = text.lines().collect();
+    for opt in ["--rate-hz <RATE_HZ>", "--out <OUT>"] {
+        // The option's line in the options list, its description on it or on the next line.
+        let i = lines
+            .iter()
+            .position(|l| l.trim_start().starts_with(opt))
+            .unwrap_or_else(|| panic!("{opt} not listed: {text}"));
+        let described = lines[i].trim_start()[opt.len()..].trim().len() > 10
+            || lines.get(i + 1).is_some_and(|n| n.trim().len() > 10);
+        assert!(described, "{opt} has no description: {text}");
+    }
+}
