@@ -120,6 +120,17 @@ fn a_real_trial_keeps_its_marks_drop_and_outcome_in_seconds() {
         r.extra.get("resampled_from_hz").map(String::as_str),
         Some("16.7")
     );
+    // The tools take the folder as 40 Hz data: `label` finds the same drop at 40 Hz.
+    let l = slipguard()
+        .arg("label")
+        .arg(&dir)
+        .arg("--stats")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&l.stdout);
+    assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
+    assert!(text.contains("config at 40 Hz: lead 48 steps"), "{text}");
+    assert!(text.contains("failures with a drop 1"), "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
