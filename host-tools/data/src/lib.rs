@@ -12,6 +12,7 @@ pub mod labels;
 pub mod metrics;
 pub mod pipe;
 pub mod recording;
+pub mod resample;
 pub mod shipped;
 pub mod trial;
 

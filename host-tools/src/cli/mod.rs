@@ -18,6 +18,7 @@ mod label;
 mod monitor;
 mod progress;
 mod replay;
+mod resample;
 mod simulate;
 #[cfg(feature = "train")]
 mod train;
@@ -68,6 +69,11 @@ pub enum Command {
         after_help = "Examples:\n  slipguard replay data/eagle-shoal/trials/Cheez_100_814_top_3 --script marks --png out/fig8.png\n  slipguard replay trial.csv --model models/hand-force/hand-force.bin --out frames.bin"
     )]
     Replay(replay::Args),
+    /// Recordings at another frame rate (band-limited), marks and labels moved by time.
+    #[command(
+        after_help = "Example:\n  slipguard resample data/eagle-shoal --rate-hz 40 --out out/real40"
+    )]
+    Resample(resample::Args),
     /// Simulated hand lifting objects with a light grip: drop rate with slip prediction off vs on.
     #[command(
         after_help = "Example:\n  slipguard closed-loop --trials 20 --oracle --out out/closed-loop"
@@ -134,6 +140,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Baselines(a) => baselines::run(a),
         Command::Monitor(a) => monitor::run(a),
         Command::Replay(a) => replay::run(a),
+        Command::Resample(a) => resample::run(a),
         Command::ClosedLoop(a) => closed_loop::run(a),
         #[cfg(feature = "train")]
         Command::Train(a) => train::run(*a),
