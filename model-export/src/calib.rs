@@ -12,7 +12,7 @@ use std::path::Path;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
-use slipguard_core::batch::BatchModel;
+use slipguard_batch::BatchModel;
 use slipguard_core::blob::{AlignedBlob, ModelConfig};
 use slipguard_core::float::FloatModel;
 use slipguard_core::model::{Model, StepOutput};
@@ -475,7 +475,7 @@ struct SeqCompare {
 const COMPARE_BATCH: usize = 64;
 
 /// Runs both models over every sequence (from a reset state each) and compares them. The
-/// quantized model runs batched ([`slipguard_core::batch`], bit-exact with `Model::step`),
+/// quantized model runs batched ([`slipguard_batch`], bit-exact with `Model::step`),
 /// [`COMPARE_BATCH`] sequences at a time, the batches in parallel (rayon); the float model
 /// steps beside it, and the per-sequence results are combined in the sequences' order, so the
 /// agreement is the same for any thread count.

@@ -8,11 +8,11 @@
 
 use std::collections::BTreeMap;
 
-use slipguard_core::blob::keys;
 use slipguard_core::blob::{InputUnit, ModelConfig, Variant};
 use slipguard_core::decision::{FusedHand, LOAD_WINDOW_MAX, LoadRule, Q15};
 use slipguard_core::features::stft::{StftConfig, WindowShape};
 use slipguard_core::units::Millihertz;
+use slipguard_data::checkpoint_keys as keys;
 
 use crate::error::{ExportError, Result};
 

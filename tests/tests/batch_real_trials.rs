@@ -1,4 +1,4 @@
-//! The batched core (`slipguard_core::batch`) on the real trials, bit for bit against the
+//! The batched path (`slipguard_batch`) on the real trials, bit for bit against the
 //! single-channel path `Model::step` / `Model::step_in_contact` (the firmware's path, tested
 //! against independent references in the core's own tests: f64 DFT, microfft, the f32 model,
 //! PyTorch fixtures). Every channel of every eagle-shoal trial is one lane; the trials'
@@ -10,7 +10,7 @@
 //! traces, resets and masks.
 use std::path::Path;
 
-use slipguard_core::batch::BatchModel;
+use slipguard_batch::BatchModel;
 use slipguard_core::blob::{AlignedBlob, ModelConfig, Variant};
 use slipguard_core::decision::{ContactConfig, ContactEdge};
 use slipguard_core::float::FloatModel;

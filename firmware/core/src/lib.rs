@@ -13,9 +13,10 @@
 //!
 //! [`blob`] parses the model blob (formats v1 and v2, `docs/model-format.md`) zero-copy from flash and
 //! [`model`] ties the stages together over a per-channel [`model::ChannelState`].
-//! Behind the `std` feature, [`float`] is the f32 reference of exactly the same network and
-//! [`quantize`] turns float weights into a blob, and [`batch`] steps many channels at once
-//! (bit-exact with [`model::Model::step`]) for the host tools.
+//! Behind the `std` feature, [`float`] is the f32 reference of exactly the same network (what
+//! the quantized path is checked against) and [`quantize`] turns float weights into a blob.
+//! Host-only speed (many channels at once, the host CPU's SIMD kernels) is the host crate
+//! `slipguard-batch`, checked bit for bit against [`model::Model::step`].
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
@@ -24,8 +25,6 @@
 compile_error!("slipguard-core reads model blobs in place and supports little-endian targets only");
 
 pub mod activation;
-#[cfg(feature = "std")]
-pub mod batch;
 pub mod blob;
 pub mod const_math;
 pub mod decision;

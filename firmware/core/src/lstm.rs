@@ -61,9 +61,11 @@ impl Default for LstmState {
     }
 }
 
-/// Gate pre-activation of one row, Q3.12.
+/// Gate pre-activation of one row, Q3.12: the row requantisation of [`LstmRowParams`] from
+/// the two exact sums. Public for the batched host path (`slipguard-batch`), which runs this
+/// same code lane by lane.
 #[inline(always)]
-pub(crate) fn requant(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
+pub fn requant(p: &LstmRowParams, acc_x: i32, acc_h: i32) -> i16 {
     let shift = p.shift as u32;
     let k = shift.wrapping_sub(33);
     if k < 30 {
@@ -178,9 +180,10 @@ impl CellShifts {
 /// `c' = sat(round(f·c / 2^15) + round(i·g / 2^(30-C)))`, `h' = sat(round(o·tanh(c') / 2^15))`.
 ///
 /// Every product of two i16 lies in [-2^30 + 2^15, 2^30]; with a rounding half of at most
-/// 2^28 it stays below 2^31, so these `i32` sums equal the wide ones.
+/// 2^28 it stays below 2^31, so these `i32` sums equal the wide ones. Public for the batched
+/// host path (`slipguard-batch`), which runs this same code lane by lane.
 #[inline(always)]
-pub(crate) fn cell_unit(k: CellShifts, [i, f, g, o]: [i16; 4], c: &mut i16, h: &mut i16) {
+pub fn cell_unit(k: CellShifts, [i, f, g, o]: [i16; 4], c: &mut i16, h: &mut i16) {
     // f·c: Q0.15 × Q(15-C).C, >> 15 keeps the cell's format.
     let fc = (f as i32 * *c as i32 + (1 << 14)) >> 15;
     let ig = (i as i32 * g as i32 + k.ig_half) >> k.ig_shift;

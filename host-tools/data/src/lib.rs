@@ -1,11 +1,13 @@
 //! slipguard grasp data: the trial type every tool reads ([`trial::Trial`]), our
 //! recording format ([`recording`]), the eagle-shoal loader ([`eagle`]), the paper's
-//! labels ([`labels`]) and the evaluation metrics ([`metrics`]). No ML, plotting or
+//! labels ([`labels`]), the evaluation metrics ([`metrics`]) and the model settings keys of
+//! checkpoints and exporter settings ([`checkpoint_keys`]). No ML, plotting or
 //! serial dependency: the exporter stands on this crate.
 //!
 //! Errors are [`error::DataError`].
 
 pub mod armed;
+pub mod checkpoint_keys;
 pub mod eagle;
 pub mod error;
 pub mod labels;

@@ -22,8 +22,8 @@ use slipguard_core::float::{FloatDense, FloatLstm, FloatModel};
 
 use crate::error::{LearnError, Result};
 
-/// `__metadata__` keys: the core's, shared with the exporter's settings.
-pub use slipguard_core::blob::keys;
+/// `__metadata__` keys: the data crate's, shared with the exporter's settings.
+pub use slipguard_data::checkpoint_keys as keys;
 
 /// PyTorch prefixes of the LSTMs of a variant (the checkpoint's tensor names).
 pub fn lstm_prefixes(variant: Variant) -> &'static [&'static str] {

@@ -2,7 +2,7 @@
 //! trials, simulated force and suction), cross-validation folds by trial and the decision sweep.
 //! Metrics come from [`slipguard_data::metrics`]; the Fig. 8 plots are the CLI's.
 
-use slipguard_core::batch::BatchModel;
+use slipguard_batch::BatchModel;
 use slipguard_core::blob::{AlignedBlob, InputUnit, ModelConfig, Variant};
 use slipguard_core::decision::{DecisionConfig, DecisionState, Q15};
 use slipguard_core::features::stft::StftConfig;
@@ -188,7 +188,7 @@ pub fn quant_p_q15(model: &Model<'_>, samples: &[f32]) -> Vec<i16> {
 pub const BATCH_SEQUENCES: usize = 256;
 
 /// [`quant_p_q15`] of every sequence (each from a fresh state), the same numbers: the
-/// sequences run as the lanes of the batched core ([`slipguard_core::batch`], bit-exact with
+/// sequences run as the lanes of the batched core ([`slipguard_batch`], bit-exact with
 /// [`Model::step`]), [`BATCH_SEQUENCES`] per batch, the batches in parallel (rayon; the
 /// result in the sequences' order whatever the thread count). Shorter sequences of a batch
 /// stop stepping at their end. A model the batch cannot take (a RAM image) runs sequence by

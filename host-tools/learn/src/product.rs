@@ -6,7 +6,7 @@
 //! trial. Then the grasp's armed window for [`crate::armed`].
 
 use rayon::prelude::*;
-use slipguard_core::batch::BatchModel;
+use slipguard_batch::BatchModel;
 use slipguard_core::decision::{
     ContactConfig, ContactEdge, DecisionState, FusedHand, HandConfig, LoadRule, LoadRuleState,
 };
@@ -109,7 +109,7 @@ fn step_load(scale: &InputScale, raw: &[i32], in_contact: impl Fn(usize) -> bool
 /// Sample values are rounded to whole sensor units, as the firmware's front end delivers them.
 ///
 /// The trial's channels step together through the batched core
-/// ([`slipguard_core::batch`], bit-exact with [`Model::step_in_contact`]); a model the batch
+/// ([`slipguard_batch`], bit-exact with [`Model::step_in_contact`]); a model the batch
 /// cannot take (a RAM image) runs channel by channel ([`run_trial_single`], the same numbers).
 pub fn run_trial(
     model: &Model<'_>,

@@ -1,5 +1,5 @@
 //! `slipguard bench-host`: host throughput of the bit-exact core in channel-steps per second,
-//! the batched path (`slipguard_core::batch`) at batches of 1, 16, 256 and 4096 lanes on 1
+//! the batched path (`slipguard_batch`) at batches of 1, 16, 256 and 4096 lanes on 1
 //! and 2 threads against the single-step path (`Model::step`), and PyTorch's offline
 //! `nn.LSTM` of the same shape when measured in the same run (`--run-torch`, or a result file
 //! from `scripts/bench_torch_lstm.py` given with `--torch`).
@@ -15,9 +15,9 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use slipguard_core::batch::{BatchModel, CHUNK_LANES};
+use slipguard_batch::kernels::{PairSumsPath, batch_pair_sums_on};
+use slipguard_batch::{BatchModel, CHUNK_LANES};
 use slipguard_core::blob::AlignedBlob;
-use slipguard_core::dsp::{PairSumsPath, batch_pair_sums_on};
 use slipguard_core::model::{ChannelState, Model, StepOutput};
 
 /// Variant (c) (force + d(t) + 10 STFT bands), hidden 128, random PyTorch-like weights: the
@@ -216,10 +216,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The first LSTM's h-part matrix product alone (`dsp::batch_pair_sums_on`: 4H rows × H/2
-/// input pairs × one chunk of lanes) on 1 thread, on every path this CPU has, in ten turns
-/// each of a tenth of `dur` (so that a changing load meets the paths alike): multiply-adds
-/// per second of each, and the ratio of the first (fastest) path to the second.
+/// The first LSTM's h-part matrix product alone (`slipguard_batch::kernels::batch_pair_sums_on`:
+/// 4H rows × H/2 input pairs × one chunk of lanes) on 1 thread, on every path this CPU has, in
+/// ten turns each of a tenth of `dur` (so that a changing load meets the paths alike):
+/// multiply-adds per second of each, and the ratio of the first (fastest) path to the second.
 fn kernel_line(hidden: usize, dur: Duration) {
     let (rows, pairs, lanes) = (4 * hidden, hidden.div_ceil(2), CHUNK_LANES);
     let mut seed = 0x2545_f491_u32;

@@ -425,9 +425,10 @@ impl StftPlan {
         }
     }
 
-    /// sqrt(re² + im²) / Σw in Q1.15, for Q3.45 accumulators.
+    /// sqrt(re² + im²) / Σw in Q1.15, for Q3.45 accumulators (a bin's Σ x·w·cos and Σ x·w·sin,
+    /// exact in i64: |sum| < 2^51).
     #[inline(always)]
-    fn magnitude(&self, re: i64, im: i64) -> i16 {
+    pub fn magnitude(&self, re: i64, im: i64) -> i16 {
         // Reduce to |·| <= 2^30 (see `acc_shift`) so the squares sum to < 2^61. acc_shift is
         // 16..=21 (L is 31..=36 for N <= 48): the mask changes nothing but tells the compiler
         // that the 64-bit shift is by less than 32 (a few instructions instead of two paths).
@@ -441,103 +442,49 @@ impl StftPlan {
     }
 }
 
-/// Working buffers of [`StftPlan::step_lanes`] for up to `lanes` lanes (host, `std`).
-#[cfg(feature = "std")]
-#[derive(Clone, Debug)]
-pub struct StftLanes {
-    /// Windowed samples, oldest first, Q2.30: `xw[n·lanes + i]`.
-    xw: Vec<i32>,
-    /// One bin's accumulators per lane, Q3.45.
-    re: Vec<i64>,
-    im: Vec<i64>,
-    lanes: usize,
-}
-
-#[cfg(feature = "std")]
-impl StftLanes {
-    /// Buffers for up to `lanes` lanes.
-    pub fn new(lanes: usize) -> Self {
-        Self {
-            xw: vec![0; MAX_WINDOW * lanes],
-            re: vec![0; lanes],
-            im: vec![0; lanes],
-            lanes,
-        }
-    }
-}
-
-#[cfg(feature = "std")]
 impl StftPlan {
-    /// [`StftPlan::step`] of many channels at once (the batched host path): lane i with
-    /// `on[i]` pushes `x[i]` into `states[i]`, and bin b's magnitude goes to
-    /// `out[b·n + i]` (n = `on.len()`, at most the buffers' lanes); lanes not `on` keep their
-    /// state and get 0. The same numbers as [`StftPlan::step`]: the same windowed samples, and
-    /// per bin the same exact i64 sums (|sum| < 2^51), here with the lanes innermost so that
-    /// one twiddle meets every lane ([`crate::dsp::stft_bin_sums`]), then the same magnitude.
-    pub fn step_lanes(
+    /// Pushes `x` (Q1.15) into `state` as [`StftPlan::step`] does and writes the window's
+    /// samples times w(n), oldest first, Q2.30, into `xw[..N]` (the windowed samples of
+    /// `step`'s general path; a rectangular window gives x·2^15 exactly). Returns N. With
+    /// [`StftPlan::twiddle`] and [`StftPlan::magnitude`] this is `step` in pieces, for the
+    /// batched host path (`slipguard-batch`), which sums many states' bins at once.
+    pub fn push_windowed(
         &self,
-        buf: &mut StftLanes,
-        states: &mut [StftState],
-        x: &[i16],
-        on: &[bool],
-        out: &mut [i16],
-    ) {
-        let lanes = on.len().min(buf.lanes).min(states.len()).min(x.len());
+        state: &mut StftState,
+        x: i16,
+        xw: &mut [i32; MAX_WINDOW],
+    ) -> usize {
         let n = usize::from(self.config.window_len);
-        let bins = usize::from(self.config.n_bins);
-        let xw = &mut buf.xw[..n * lanes];
-        for i in 0..lanes {
-            if !on[i] {
-                for k in 0..n {
-                    xw[k * lanes + i] = 0;
-                }
-                continue;
-            }
-            // The ring as in `step`.
-            let state = &mut states[i];
-            let mut head = usize::from(state.head);
-            if head >= n {
-                head = 0;
-            }
-            if let Some(slot) = state.samples.get_mut(head) {
-                *slot = x[i];
-            }
-            head += 1;
-            if head >= n {
-                head = 0;
-            }
-            state.head = head as u8;
-            let (newer, older) = state.samples[..n].split_at(head);
-            for (k, (&smp, &w)) in older.iter().chain(newer).zip(&self.window).enumerate() {
-                xw[k * lanes + i] = round_shift_i64(i64::from(smp) * i64::from(w), 15) as i32;
-            }
+        // The ring as in `step`.
+        let mut head = usize::from(state.head);
+        if head >= n {
+            head = 0;
         }
-        for (b, k) in (usize::from(self.config.first_bin)..)
-            .take(bins)
-            .enumerate()
+        if let Some(slot) = state.samples.get_mut(head) {
+            *slot = x;
+        }
+        head += 1;
+        if head >= n {
+            head = 0;
+        }
+        // head < n <= MAX_WINDOW < 256.
+        state.head = head as u8;
+        let (newer, older) = state.samples[..n].split_at(head);
+        for (d, (&smp, &w)) in xw
+            .iter_mut()
+            .zip(older.iter().chain(newer).zip(&self.window))
         {
-            let (re, im) = (&mut buf.re[..lanes], &mut buf.im[..lanes]);
-            re.fill(0);
-            im.fill(0);
-            let mut m = 0usize;
-            for t in 0..n {
-                let (c, s) = self.twiddles.get(m).copied().unwrap_or((0, 0));
-                crate::dsp::stft_bin_sums(&xw[t * lanes..(t + 1) * lanes], c, s, re, im);
-                m += k;
-                if m >= n {
-                    m -= n;
-                }
-            }
-            if let Some(o) = out.get_mut(b * lanes..(b + 1) * lanes) {
-                for i in 0..lanes {
-                    o[i] = if on[i] {
-                        self.magnitude(re[i], im[i])
-                    } else {
-                        0
-                    };
-                }
-            }
+            // Q1.15 × Q2.30 = Q3.45, >> 15 back to Q2.30; |x·w| <= w <= 2^30 fits the i32.
+            *d = round_shift_i64(i64::from(smp) * i64::from(w), 15) as i32;
         }
+        n
+    }
+
+    /// The twiddle (cos, sin), Q1.15, that DFT bin `k`'s sum pairs with windowed sample `t`
+    /// (oldest first): index k·t mod N, the index [`StftPlan::step`] advances by k per sample.
+    pub fn twiddle(&self, k: usize, t: usize) -> (i16, i16) {
+        let n = usize::from(self.config.window_len).max(1);
+        self.twiddles.get((k * t) % n).copied().unwrap_or((0, 0))
     }
 }
 

@@ -1,4 +1,4 @@
-//! The batched path (`slipguard_core::batch`) against the single-channel path, bit for bit.
+//! The batched path (`slipguard_batch`) against the single-channel path, bit for bit.
 //!
 //! The reference is `Model::step` / `Model::step_in_contact`, one channel at a time: the path
 //! the firmware runs, itself checked against independent references (the f64 DFT and
@@ -11,9 +11,11 @@
 //! pair of h) up to 128; 70 lanes (two chunks, padding lanes), 700 steps with lane resets,
 //! contact-gated restarts and ragged (masked) lanes. The shipped models on the real trials
 //! are checked in `tests/tests/batch_real_trials.rs` (the workspace's cross-crate tests).
+// The core's test helpers (random float models, smooth force traces), shared, not copied.
+#[path = "../../../firmware/core/tests/common/mod.rs"]
 mod common;
 
-use slipguard_core::batch::{BatchModel, BatchState};
+use slipguard_batch::{BatchModel, BatchState};
 use slipguard_core::blob::{AlignedBlob, Variant};
 use slipguard_core::decision::{ContactConfig, ContactEdge};
 use slipguard_core::model::{ChannelState, GatedOutput, Model, StepOutput};

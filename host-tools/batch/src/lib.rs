@@ -1,40 +1,54 @@
-//! Many channels at once (host only, `std`): the bit-exact model of [`Model::step`] over a
-//! batch of channels stepped together, for evaluation, calibration and replay at dataset scale.
+//! # slipguard-batch
+//!
+//! Many channels at once, on the host: the bit-exact model of the core's
+//! [`Model::step`](slipguard_core::model::Model::step) over a batch of channels stepped
+//! together, for evaluation, calibration and replay at dataset scale. The board never runs it;
+//! it lives outside the `no_std` core, which keeps the board's kernels and the portable
+//! references they are checked against.
 //!
 //! Per step the single path does, for each channel, one matrix-vector product per LSTM
 //! (4H rows × (I + H) int8 weights × int16 activations); here one [`BatchModel::step`] does the
 //! same products for every lane (channel) of a [`BatchState`] as one matrix product,
-//! `gates[4H × lanes] = W[4H × K] · X[K × lanes]` ([`crate::dsp::batch_pair_sums`]), so each
+//! `gates[4H × lanes] = W[4H × K] · X[K × lanes]` ([`kernels::batch_pair_sums`]), so each
 //! weight, loaded once, meets 16 lanes. The layout is structure of arrays: a lane's h is
 //! spread over `h[pair][lane]` words (two units per word, the kernel's i16 pairs), c over
 //! `c[unit][lane]`; the weights are widened to i16 pairs and laid out per row at construction.
 //!
 //! Bit-exact by construction, not by tolerance: the sums are exact integer sums (no partial
-//! sum can overflow, see [`crate::dsp::batch_pair_sums`]), so the summation order does not
+//! sum can overflow, see [`kernels::batch_pair_sums`]), so the summation order does not
 //! change them, and everything after the sums is the single path's own code, lane by lane:
-//! the front end ([`raw_features`], [`normalise`]), the row requantisation and the table
-//! activations, the cell update and the decision (the test `batch_vs_single` checks every
-//! variant, with and without d(t), against [`Model::step`] and [`Model::step_in_contact`]).
+//! the front end ([`raw_features`], [`normalise`], the STFT's pieces in [`stft`]), the row
+//! requantisation and the table activations, the cell update and the decision (the test
+//! `batch_vs_single` checks every variant, with and without d(t), against [`Model::step`] and
+//! [`Model::step_in_contact`]).
 //!
 //! Lanes are processed [`CHUNK_LANES`] at a time (the chunk's sums stay in L2); the lane count
 //! is padded to whole [`BATCH_TILE_LANES`] tiles, the padding lanes computed and never read.
+//!
+//! `unsafe` is denied outside [`kernels`] (the x86-64 intrinsics), where every block has a
+//! `// SAFETY:` line.
 
-use core::fmt;
+pub mod kernels;
+pub mod stft;
 
-use crate::MAX_INPUT;
-use crate::activation;
-use crate::blob::{DenseRowParams, LstmTensors, pad4};
-use crate::decision::{ContactConfig, ContactEdge, ContactState, DecisionConfig, DecisionState};
-use crate::dsp::sigmoid;
-use crate::dsp::{
-    BATCH_TILE_LANES, BATCH_TILE_ROWS, LstmRowParams, batch_cell_update, batch_gate_row_fast,
-    batch_gate_rows, batch_pair_sums, interval_table,
+use std::fmt;
+
+use slipguard_core::MAX_INPUT;
+use slipguard_core::activation;
+use slipguard_core::blob::{DenseRowParams, LstmTensors, pad4};
+use slipguard_core::decision::{
+    ContactConfig, ContactEdge, ContactState, DecisionConfig, DecisionState,
 };
-use crate::features::stft::{StftLanes, StftPlan, StftState};
-use crate::features::{FeatureLayout, FeatureState, normalise, raw_features};
-use crate::fixed::{round_shift_i64, sat_i16_wide};
-use crate::lstm::{CellShifts, LstmState, cell_unit, requant};
-use crate::model::{ChannelState, GatedOutput, Model, StepOutput};
+use slipguard_core::dsp::{LstmRowParams, interval_table, sigmoid};
+use slipguard_core::features::stft::{StftPlan, StftState};
+use slipguard_core::features::{FeatureLayout, FeatureState, normalise, raw_features};
+use slipguard_core::fixed::{round_shift_i64, sat_i16_wide};
+use slipguard_core::lstm::{CellShifts, LstmState, cell_unit, requant};
+use slipguard_core::model::{ChannelState, GatedOutput, Model, StepOutput};
+
+pub use kernels::{BATCH_TILE_LANES, BATCH_TILE_ROWS};
+use kernels::{batch_cell_update, batch_gate_row_fast, batch_gate_rows, batch_pair_sums};
+use stft::{StftLanes, step_lanes};
 
 /// Lanes per pass of a step: the chunk's gate sums (2 × 4H × 64 `i32`, 128 KiB for H = 128)
 /// stay in L2 while the weights (143 KiB as i16 pairs for variant (c), H = 128) are reused
@@ -66,7 +80,7 @@ impl fmt::Display for BatchError {
     }
 }
 
-impl core::error::Error for BatchError {}
+impl std::error::Error for BatchError {}
 
 /// Two i16 values as one word, `lo | hi << 16` (the pair kernels' operand).
 #[inline(always)]
@@ -109,7 +123,7 @@ impl PackedLstm {
         if t.blocked {
             return Err(BatchError::RamImage);
         }
-        let hidden = t.hidden.min(crate::MAX_HIDDEN);
+        let hidden = t.hidden.min(slipguard_core::MAX_HIDDEN);
         let take = take.min(t.inputs);
         let (px, ph) = (t.inputs.div_ceil(2), hidden.div_ceil(2));
         let rows = 4 * hidden;
@@ -279,7 +293,7 @@ impl<'a> BatchModel<'a> {
                 gates: vec![0; rows * CHUNK_LANES],
                 on: vec![false; CHUNK_LANES],
                 stft: StftLanes::new(CHUNK_LANES),
-                bands: vec![0; crate::features::MAX_BANDS * CHUNK_LANES],
+                bands: vec![0; slipguard_core::features::MAX_BANDS * CHUNK_LANES],
                 dense: vec![0; BATCH_TILE_ROWS * CHUNK_LANES],
                 logits: vec![[0; 2]; CHUNK_LANES],
             },
@@ -391,7 +405,7 @@ impl<'a> BatchModel<'a> {
                 continue;
             }
             // The front end: force and d(t) lane by lane (the single path's code), the STFT
-            // bands of the chunk's lanes at once (`StftPlan::step_lanes`, the same numbers),
+            // bands of the chunk's lanes at once (`stft::step_lanes`, the same numbers),
             // then the normalisation lane by lane.
             for i in 0..cl {
                 s.feats[i] = [0; MAX_INPUT];
@@ -412,7 +426,7 @@ impl<'a> BatchModel<'a> {
                 let first = self.layout.force as usize + self.layout.diff as usize;
                 let bands = &mut s.bands[..self.layout.bands * m];
                 let (st, x) = (&mut stft[c0..c0 + m], &x_q15[c0..c0 + m]);
-                plan.step_lanes(&mut s.stft, st, x, &s.on[..m], bands);
+                step_lanes(plan, &mut s.stft, st, x, &s.on[..m], bands);
                 for b in 0..self.layout.bands.min(MAX_INPUT.saturating_sub(first)) {
                     for i in 0..m {
                         s.feats[i][first + b] = bands[b * m + i];
@@ -500,7 +514,7 @@ impl<'a> BatchModel<'a> {
 /// `gates[r·lanes + l] = f(requant(rows[r], acc_x[r·lanes + l], acc_h[r·lanes + l]))`, f = tanh
 /// for the cell-candidate rows `2·hn..3·hn` and σ for the others: the single path's gate pass
 /// (`lstm::gate_activations_portable`) with the lanes innermost, in
-/// [`crate::dsp::batch_gate_rows`] where it runs and here for the rest.
+/// [`kernels::batch_gate_rows`] where it runs and here for the rest.
 pub fn gate_rows(
     acc_x: &[i32],
     acc_h: &[i32],
@@ -561,7 +575,7 @@ fn gate_rows_from(
 /// `stride`: for each unit j < `hn` and lane i, `lstm::cell_unit` from the gates
 /// `gates[(g·hn + j)·lanes + i]` (i, f, g, o) on `c[j·stride + c0 + i]`, c' written there and h'
 /// into the low (j even) or high (j odd) half of `h[(j / 2)·stride + c0 + i]`; lanes with
-/// `on[i]` false keep their c and h. In [`crate::dsp::batch_cell_update`] where it runs, here
+/// `on[i]` false keep their c and h. In [`kernels::batch_cell_update`] where it runs, here
 /// for the rest.
 #[allow(clippy::too_many_arguments)]
 pub fn cell_update(

@@ -1,17 +1,17 @@
-//! Host benchmark of the batched path ([`slipguard_core::batch`]), variant (c) (force + 10
+//! Host benchmark of the batched path ([`slipguard_batch`]), variant (c) (force + 10
 //! STFT bands), hidden 128, one step of every lane for batches of 1, 16, 256 and 4096 lanes,
-//! one thread: `cargo bench -p slipguard-core --features std --bench batch_step`.
+//! one thread: `cargo bench -p slipguard-batch --bench batch_step`.
 //! Criterion reports elements (channel-steps) per second; `slipguard bench-host` adds two
 //! threads, the single-step path and PyTorch in one run.
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use std::hint::black_box;
 
-use slipguard_core::batch::BatchModel;
+use slipguard_batch::BatchModel;
 use slipguard_core::blob::AlignedBlob;
 use slipguard_core::model::{Model, StepOutput};
 
-const BLOB: &[u8] = include_bytes!("../tests/fixtures/bench/model.bin");
-const INPUT: &[u8] = include_bytes!("../tests/fixtures/bench/input.bin");
+const BLOB: &[u8] = include_bytes!("../../../firmware/core/tests/fixtures/bench/model.bin");
+const INPUT: &[u8] = include_bytes!("../../../firmware/core/tests/fixtures/bench/input.bin");
 
 fn bench(c: &mut Criterion) {
     let blob = AlignedBlob::new(BLOB);

@@ -1,17 +1,19 @@
-//! The batched path's kernels (`slipguard_core::dsp`, host, with their callers in
-//! `slipguard_core::batch`): each run-time-chosen path (AVX-512 VNNI and AVX2 where the CPU
+//! The batched path's kernels (`slipguard_batch::kernels`, with their callers in the crate's
+//! root and `stft`): each run-time-chosen path (AVX-512 VNNI and AVX2 where the CPU
 //! has them; for the pair sums every path the CPU has, each shown to have run) against the
 //! portable code, on random inputs over the admitted ranges, edge values and shapes with
 //! partial tiles. `batch_vs_single.rs` checks the whole batched step against the single
 //! path; these check the portable code other targets run, too.
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use slipguard_core::batch::{cell_update, cell_update_portable, gate_rows, gate_rows_portable};
-use slipguard_core::blob::LstmRowParams;
-use slipguard_core::dsp::{
+use slipguard_batch::kernels::{
     PairSumsPath, batch_pair_sums, batch_pair_sums_on, batch_pair_sums_portable, stft_bin_sums,
     stft_bin_sums_portable,
 };
+use slipguard_batch::stft::{StftLanes, step_lanes};
+use slipguard_batch::{cell_update, cell_update_portable, gate_rows, gate_rows_portable};
+use slipguard_core::blob::LstmRowParams;
+use slipguard_core::features::stft::{StftConfig, StftPlan, StftState, WindowShape};
 use slipguard_core::lstm::CellShifts;
 
 fn pair(a: i16, b: i16) -> u32 {
@@ -199,5 +201,67 @@ fn stft_bin_sums_equal_the_portable_sums() {
         stft_bin_sums(&xw, c, s, &mut rf, &mut imf);
         stft_bin_sums_portable(&xw, c, s, &mut rs, &mut ims);
         assert_eq!((rf, imf), (rs, ims), "lanes {lanes}");
+    }
+}
+
+/// `step_lanes` against `StftPlan::step` run lane by lane (the board's single path): both window
+/// shapes, short, paper and longest windows, bins from DC to Nyquist, lanes switched off now
+/// and then (their state must not move, their output is 0), inputs over the whole i16 range.
+#[test]
+fn stft_lanes_equal_the_single_step() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let configs = [
+        StftConfig::PAPER,
+        StftConfig {
+            window_len: 4,
+            first_bin: 0,
+            n_bins: 3,
+            shape: WindowShape::Hann,
+        },
+        StftConfig {
+            window_len: 48,
+            first_bin: 14,
+            n_bins: 10,
+            shape: WindowShape::Hann,
+        },
+        StftConfig {
+            window_len: 21,
+            first_bin: 0,
+            n_bins: 10,
+            shape: WindowShape::Rectangular,
+        },
+    ];
+    let lanes = 19;
+    for config in configs {
+        let plan = StftPlan::new(config).expect("a valid STFT setting");
+        let bins = usize::from(config.n_bins);
+        let mut buf = StftLanes::new(lanes);
+        let mut batched = vec![StftState::new(); lanes];
+        let mut single = vec![StftState::new(); lanes];
+        let mut out = vec![0i16; bins * lanes];
+        let mut moved = false;
+        for t in 0..150 {
+            let x: Vec<i16> = (0..lanes)
+                .map(|i| match (t + i) % 41 {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    _ => rng.random(),
+                })
+                .collect();
+            let on: Vec<bool> = (0..lanes).map(|_| rng.random_range(0..5) != 0).collect();
+            out.fill(-1);
+            step_lanes(&plan, &mut buf, &mut batched, &x, &on, &mut out);
+            for i in 0..lanes {
+                let mut want = vec![0i16; bins];
+                if on[i] {
+                    plan.step(&mut single[i], x[i], &mut want);
+                }
+                let got: Vec<i16> = (0..bins).map(|b| out[b * lanes + i]).collect();
+                assert_eq!(got, want, "{config:?} step {t} lane {i}");
+                assert_eq!(batched[i], single[i], "{config:?} step {t} lane {i} state");
+                moved |= want.iter().any(|&v| v > 100);
+            }
+        }
+        assert!(moved, "{config:?}: the bands saw signal");
     }
 }
