@@ -14,12 +14,12 @@ use slipguard_data::labels::{ChannelSequence, LabelConfig};
 use slipguard_learn::checkpoint::{self, Checkpoint};
 use slipguard_learn::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
-    sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
-    with_quantized_model,
+    set_decision, tune_decision, with_quantized_model,
 };
 use slipguard_learn::product::{self, OnsetRule};
 use slipguard_learn::qat::{QatConfig, blob_agreement, qat_finetune};
 use slipguard_learn::train::{EpochLog, Progress, TrainConfig, init_model, split_by_trial, train};
+use slipguard_learn::training_data::{self, SimRecipe, TrainingSets};
 
 use super::progress::bar;
 use super::{check, load_real_trials};
@@ -236,10 +236,6 @@ fn class_weights(s: &str) -> anyhow::Result<[f32; 2]> {
     Ok([v[0], v[1]])
 }
 
-fn refs(v: &[Sequence]) -> Vec<&ChannelSequence> {
-    v.iter().map(|s| &s.cs).collect()
-}
-
 /// What [`Run::qat`] returns.
 struct QatRun {
     model: FloatModel,
@@ -253,9 +249,7 @@ struct QatRun {
 
 /// What every fold's training draws on.
 struct FoldData<'d> {
-    real: &'d [Sequence],
-    sim_mix: &'d [Sequence],
-    cl_mix: &'d [Sequence],
+    sets: &'d TrainingSets,
     /// The pre-trained model all folds start from, if any.
     pre: Option<&'d FloatModel>,
     config: slipguard_core::blob::ModelConfig,
@@ -433,17 +427,8 @@ impl Run<'_> {
     ) -> anyhow::Result<FoldFit<'d>> {
         let a = self.a;
         let mut timing = Vec::new();
-        let tr_refs: Vec<&ChannelSequence> = train_real.iter().map(|s| &s.cs).collect();
-        let (mut tr, val) = split_by_trial(&tr_refs, a.val_share, split_seed);
-        let (mut tr_mix, val_mix) = if d.real.is_empty() {
-            split_by_trial(&refs(d.sim_mix), a.val_share, a.seed)
-        } else {
-            (refs(d.sim_mix), Vec::new())
-        };
-        tr.append(&mut tr_mix);
-        let (mut tr_cl, val_cl) = split_by_trial(&refs(d.cl_mix), a.val_share, a.seed);
-        tr.append(&mut tr_cl);
-        let val: Vec<&ChannelSequence> = val.into_iter().chain(val_mix).chain(val_cl).collect();
+        let (tr, val) =
+            training_data::fold_split(train_real, d.sets, a.val_share, split_seed, a.seed);
         let init = match d.pre {
             Some(m) => m.clone(),
             None => init_model(d.config, a.seed, &tr),
@@ -454,21 +439,10 @@ impl Run<'_> {
             self.fit(what, &init, &tr, &val, &self.tc)?
         };
         timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
-        let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+        let calib = training_data::calibration_inputs(&tr);
         let mut qat_note = None;
         if a.qat_epochs > 0 {
-            let agreement: Vec<Vec<f32>> = d
-                .agreement
-                .iter()
-                .filter(|t| !excluded.contains(&t.id))
-                .flat_map(|t| {
-                    t.samples
-                        .iter()
-                        .enumerate()
-                        .filter(|(c, s)| t.contact.get(*c) == Some(&true) && !s.is_empty())
-                        .map(|(_, s)| s.clone())
-                })
-                .collect();
+            let agreement = training_data::agreement_channels(d.agreement, excluded);
             let q = self.qat(what, &model, &tr, &val, &calib, agreement)?;
             timing.push(format!("{what} QAT {:.2} s/epoch", q.seconds_per_epoch));
             if q.best_epoch > 0 {
@@ -523,7 +497,7 @@ impl Run<'_> {
                 split_seed,
                 &format!("{what} inner {j}"),
             )?;
-            let calib: Vec<&[f32]> = f.tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+            let calib = training_data::calibration_inputs(&f.tr);
             let trials: Vec<&Trial> = d
                 .real_trials
                 .iter()
@@ -786,9 +760,34 @@ fn blob_name_of(a: &Args, name: &str, v: Variant) -> String {
     .to_string()
 }
 
+/// `slipguard train`, step by step: check the options against the data, set up the run, build
+/// the training sets, pick the QAT agreement recordings, then train every variant and write the
+/// summary.
 pub fn run(mut a: Args) -> anyhow::Result<()> {
     let variants = parse_variants(&a.variant)?;
     let data = resolve_data(&mut a)?;
+    check_options(&a)?;
+    let run = Run::new(&a)?;
+    let t_all = Instant::now();
+    let cl_cfg = closed_loop_config(&a)?;
+    let (real_trials, sets) = training_sets(&a, data, &cl_cfg)?;
+    let agreement_trials = agreement_trials(&a, &real_trials)?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let mut summary = Vec::new();
+    for v in variants {
+        let inputs = VariantInputs {
+            sets: &sets,
+            real_trials: &real_trials,
+            agreement: &agreement_trials,
+            rate_mhz: cl_cfg.rate_mhz,
+        };
+        summary.extend(run.variant(v, &inputs)?);
+    }
+    write_summary(&a.out, &run.command, &summary, t_all)
+}
+
+/// The option combinations clap cannot refuse on its own.
+fn check_options(a: &Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         a.epochs > 0 || a.init.is_some(),
         "--epochs 0 trains nothing: give --init CKPT (e.g. for QAT alone) or at least 1 epoch"
@@ -801,24 +800,14 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         a.tune_decision_cv != 1,
         "--tune-decision-cv 1: the inner cross-validation needs 0 (off) or 2 to 20 folds"
     );
-    let tc = TrainConfig {
-        lr: a.lr,
-        epochs: a.epochs,
-        batch: a.batch,
-        patience: a.patience,
-        seed: a.seed,
-        class_weights: class_weights(&a.class_weights)?,
-        // Durations in seconds become steps at the training rate (the data's, or --rate-hz).
-        label_lead: check::steps_at(a.label_lead_s, a.rate_hz),
-        start_weight: a.start_weight,
-        start_steps: check::steps_at(a.start_s, a.rate_hz),
-    };
-    let command = std::env::args().collect::<Vec<_>>().join(" ");
-    let run = Run { a: &a, tc, command };
-    let t_all = Instant::now();
-    // Data.
+    Ok(())
+}
+
+/// The simulated closed-loop training trials' settings, with the --closed-loop-policy blob
+/// loaded and checked.
+fn closed_loop_config(a: &Args) -> anyhow::Result<ClosedLoopTraining> {
     let rate_mhz = (a.rate_hz * 1000.0).round() as u32;
-    let cl_cfg = ClosedLoopTraining {
+    Ok(ClosedLoopTraining {
         rate_mhz,
         lead_s: a.closed_loop_lead,
         false_alarm_hz: a.closed_loop_false_alarms,
@@ -828,133 +817,265 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         },
         policy_share: a.closed_loop_policy_share,
         ..Default::default()
+    })
+}
+
+/// The training sets: the recorded trials' sequences, the simulated and closed-loop ones, cut
+/// to each channel's contact onset (unless --from-grasp-start); also returns the recorded
+/// trials.
+fn training_sets(
+    a: &Args,
+    data: Option<(PathBuf, Vec<Trial>)>,
+    cl_cfg: &ClosedLoopTraining,
+) -> anyhow::Result<(Vec<Trial>, TrainingSets)> {
+    let (real_trials, real) = recorded(a, data)?;
+    let recipe = SimRecipe {
+        seed: a.sim_seed,
+        pretrain: a.sim_pretrain,
+        mix: a.sim_mix,
+        failure_share: a.sim_failure_share,
+        rate_hz: a.rate_hz,
     };
-    let mut real_trials: Vec<Trial> = Vec::new();
-    let real = match data {
-        Some((path, trials)) => {
-            // The paper's label durations at the data's rate.
-            let real = sequences_of(&trials, &LabelConfig::default().scaled_to(a.rate_hz));
-            real_trials = trials;
-            eprintln!(
-                "recorded: {} sequences from {} at {} Hz ({} failure sequences)",
-                real.len(),
-                path.display(),
-                a.rate_hz,
-                real.iter().filter(|s| s.failure()).count()
-            );
-            anyhow::ensure!(
-                !real.is_empty() || a.sim_mix + a.closed_loop_mix > 0,
-                "{}: no training sequences (no labelled channel in contact): check the recordings \
-                 with `slipguard label {} --stats`",
-                path.display(),
-                path.display()
-            );
-            real
-        }
-        None => {
-            anyhow::ensure!(
-                a.cv == 0,
-                "--cv needs recorded trials: give a folder of labelled recordings at {} Hz",
-                a.rate_hz
-            );
-            eprintln!(
-                "{} Hz {}: simulated trials only (give a folder of labelled recordings to train on them)",
-                a.rate_hz,
-                match a.sensor {
-                    Sensor::Force => "force",
-                    Sensor::Suction => "suction",
-                }
-            );
-            Vec::new()
-        }
-    };
-    let (real, sim_pre, sim_mix) = match a.sensor {
+    let (sim_pre, sim_mix) = match a.sensor {
         Sensor::Force => {
-            let mut pre =
-                sim_force_sequences(a.sim_seed, a.sim_pretrain, a.sim_failure_share, a.rate_hz);
+            let (mut pre, mix) = recipe.force();
             pre.extend(training_sequences(
                 a.closed_loop_seed,
                 a.closed_loop_pretrain,
-                &cl_cfg,
+                cl_cfg,
             ));
-            let mix =
-                sim_force_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share, a.rate_hz);
-            (real, pre, mix)
+            (pre, mix)
         }
-        Sensor::Suction => {
-            let mix = sim_suction_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share);
-            (real, Vec::new(), mix)
-        }
+        Sensor::Suction => (Vec::new(), recipe.suction_mix()),
     };
     anyhow::ensure!(
         a.sensor == Sensor::Force || a.closed_loop_pretrain + a.closed_loop_mix == 0,
         "--closed-loop-pretrain/--closed-loop-mix simulate the hand's force pads: use --sensor force"
     );
-    let cl_mix = training_sequences(a.closed_loop_seed + 1, a.closed_loop_mix, &cl_cfg);
-    // Every sequence starts where the firmware's model state starts: at the channel's contact
-    // onset (the rule depends on the sensor's unit, scale and rate only, not on the variant).
-    let (real, sim_pre, sim_mix, cl_mix) = if a.from_grasp_start {
-        (real, sim_pre, sim_mix, cl_mix)
-    } else {
-        let probe = match a.sensor {
-            Sensor::Force => ev::force_config(Variant::Force, false, 1, "", cl_cfg.rate_mhz),
-            Sensor::Suction => ev::suction_config(Variant::Force, false, 1, ""),
-        };
-        let rule = OnsetRule::of(&probe);
-        let n0 = real.len() + sim_pre.len() + sim_mix.len() + cl_mix.len();
-        let cut = (
-            product::cut_to_contact(real, &rule),
-            product::cut_to_contact(sim_pre, &rule),
-            product::cut_to_contact(sim_mix, &rule),
-            product::cut_to_contact(cl_mix, &rule),
-        );
-        eprintln!(
-            "sequences start at each channel's contact onset ({} mN-equivalent Q1.15 {}, {} steps on, {} off): {} of {} kept",
-            ContactConfig::FORCE_ON_MN,
-            rule.contact.on_q15,
-            rule.contact.on_after,
-            rule.contact.off_after,
-            cut.0.len() + cut.1.len() + cut.2.len() + cut.3.len(),
-            n0
-        );
-        cut
+    let cl_mix = training_sequences(a.closed_loop_seed + 1, a.closed_loop_mix, cl_cfg);
+    let sets = TrainingSets {
+        real,
+        sim_pre,
+        sim_mix,
+        cl_mix,
     };
-    if !sim_pre.is_empty() || !sim_mix.is_empty() || !cl_mix.is_empty() {
+    let sets = if a.from_grasp_start {
+        sets
+    } else {
+        from_contact_onset(a, sets, cl_cfg.rate_mhz)
+    };
+    if sets.has_simulated() {
         eprintln!(
             "simulated: {} pre-training and {} mixed sequences, {} closed-loop mixed sequences",
-            sim_pre.len(),
-            sim_mix.len(),
-            cl_mix.len()
+            sets.sim_pre.len(),
+            sets.sim_mix.len(),
+            sets.cl_mix.len()
         );
     }
-    // Whole recordings for the QAT agreement check (unlabelled use).
-    let agreement_trials: Vec<Trial> = match (&a.qat_agreement_data, a.sensor) {
+    Ok((real_trials, sets))
+}
+
+/// The recorded trials and their sequences (none without a data folder: simulated trials
+/// only).
+fn recorded(
+    a: &Args,
+    data: Option<(PathBuf, Vec<Trial>)>,
+) -> anyhow::Result<(Vec<Trial>, Vec<Sequence>)> {
+    let Some((path, trials)) = data else {
+        anyhow::ensure!(
+            a.cv == 0,
+            "--cv needs recorded trials: give a folder of labelled recordings at {} Hz",
+            a.rate_hz
+        );
+        eprintln!(
+            "{} Hz {}: simulated trials only (give a folder of labelled recordings to train on them)",
+            a.rate_hz,
+            match a.sensor {
+                Sensor::Force => "force",
+                Sensor::Suction => "suction",
+            }
+        );
+        return Ok((Vec::new(), Vec::new()));
+    };
+    let real = training_data::recorded_sequences(&trials, a.rate_hz);
+    eprintln!(
+        "recorded: {} sequences from {} at {} Hz ({} failure sequences)",
+        real.len(),
+        path.display(),
+        a.rate_hz,
+        real.iter().filter(|s| s.failure()).count()
+    );
+    anyhow::ensure!(
+        !real.is_empty() || a.sim_mix + a.closed_loop_mix > 0,
+        "{}: no training sequences (no labelled channel in contact): check the recordings \
+         with `slipguard label {} --stats`",
+        path.display(),
+        path.display()
+    );
+    Ok((trials, real))
+}
+
+/// Every sequence cut to start where the firmware's model state starts: at the channel's
+/// contact onset (the rule depends on the sensor's unit, scale and rate only, not on the
+/// variant).
+fn from_contact_onset(a: &Args, sets: TrainingSets, rate_mhz: u32) -> TrainingSets {
+    let probe = match a.sensor {
+        Sensor::Force => ev::force_config(Variant::Force, false, 1, "", rate_mhz),
+        Sensor::Suction => ev::suction_config(Variant::Force, false, 1, ""),
+    };
+    let rule = OnsetRule::of(&probe);
+    let n0 = sets.len();
+    let cut = sets.cut_to_contact(&rule);
+    eprintln!(
+        "sequences start at each channel's contact onset ({} mN-equivalent Q1.15 {}, {} steps on, {} off): {} of {} kept",
+        ContactConfig::FORCE_ON_MN,
+        rule.contact.on_q15,
+        rule.contact.on_after,
+        rule.contact.off_after,
+        cut.len(),
+        n0
+    );
+    cut
+}
+
+/// Whole recordings for the QAT agreement check (unlabelled use): --qat-agreement-data, else
+/// the recorded trials, else the real force trials; none without QAT or with `none`.
+fn agreement_trials(a: &Args, real_trials: &[Trial]) -> anyhow::Result<Vec<Trial>> {
+    let trials = match (&a.qat_agreement_data, a.sensor) {
         _ if a.qat_epochs == 0 => Vec::new(),
         (Some(p), _) if p.as_os_str() == "none" => Vec::new(),
         (Some(p), _) => load_real_trials(Some(p))?.1,
-        (None, _) if !real_trials.is_empty() => real_trials.clone(),
+        (None, _) if !real_trials.is_empty() => real_trials.to_vec(),
         (None, Sensor::Force) => load_real_trials(a.path.as_deref())?.1,
         (None, Sensor::Suction) => Vec::new(),
     };
-    if !agreement_trials.is_empty() {
+    if !trials.is_empty() {
         eprintln!(
             "QAT agreement check on the whole contact channels of {} recorded trials",
-            agreement_trials.len()
+            trials.len()
         );
     }
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let mut summary = Vec::new();
-    for v in variants {
+    Ok(trials)
+}
+
+/// `train-summary.txt` in `out` (the command, one line per model, the total time); the lines
+/// also go to stdout.
+fn write_summary(
+    out: &Path,
+    command: &str,
+    summary: &[String],
+    t_all: Instant,
+) -> anyhow::Result<()> {
+    let log = out.join("train-summary.txt");
+    std::fs::write(
+        &log,
+        format!(
+            "{}\n{}\ntotal {:.0} s\n",
+            command,
+            summary.join("\n"),
+            t_all.elapsed().as_secs_f64()
+        ),
+    )?;
+    println!("{}", summary.join("\n"));
+    eprintln!("total {:.0} s", t_all.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// What every variant's training draws on.
+struct VariantInputs<'d> {
+    sets: &'d TrainingSets,
+    real_trials: &'d [Trial],
+    agreement: &'d [Trial],
+    rate_mhz: u32,
+}
+
+/// One fold's checkpoint, with what its logs and blob need.
+struct TrainedFold<'d> {
+    ck: Checkpoint,
+    history: Vec<EpochLog>,
+    best_epoch: usize,
+    n_train: usize,
+    n_val: usize,
+    calib: Vec<&'d [f32]>,
+}
+
+/// The cross-validation's held-out results of one variant, pooled over its folds.
+#[derive(Default)]
+struct CvPool<'d> {
+    /// The quantized model's hand-level grasps in the armed window.
+    armed_hand: Vec<slipguard_data::armed::ArmedGrasp>,
+    /// The float model's held-out sequences…
+    seqs: Vec<&'d Sequence>,
+    /// … with the model's decision …
+    preds: Vec<Vec<slipguard_data::trial::Stability>>,
+    /// … and with p ≥ 0.5 alone.
+    plain: Vec<Vec<slipguard_data::trial::Stability>>,
+}
+
+impl Run<'_> {
+    fn new(a: &Args) -> anyhow::Result<Run<'_>> {
+        let tc = TrainConfig {
+            lr: a.lr,
+            epochs: a.epochs,
+            batch: a.batch,
+            patience: a.patience,
+            seed: a.seed,
+            class_weights: class_weights(&a.class_weights)?,
+            // Durations in seconds become steps at the training rate (the data's, or --rate-hz).
+            label_lead: check::steps_at(a.label_lead_s, a.rate_hz),
+            start_weight: a.start_weight,
+            start_steps: check::steps_at(a.start_s, a.rate_hz),
+        };
+        let command = std::env::args().collect::<Vec<_>>().join(" ");
+        Ok(Run { a, tc, command })
+    }
+
+    /// Trains variant `v`: its model settings, the starting model, then every fold (or the one
+    /// model) trained, its decision set and written; returns its summary lines.
+    fn variant(&self, v: Variant, d: &VariantInputs<'_>) -> anyhow::Result<Vec<String>> {
+        let a = self.a;
+        let (name, config) = self.model_config(v, d.rate_mhz)?;
+        let mut timing = Vec::new();
+        let pre = self.starting_model(v, &config, &d.sets.sim_pre, &mut timing)?;
+        let folds = self.folds(&d.sets.real, d.real_trials.len())?;
+        let data = FoldData {
+            sets: d.sets,
+            pre: pre.as_ref(),
+            config,
+            agreement: d.agreement,
+            real_trials: d.real_trials,
+        };
+        let mut pool = CvPool::default();
+        for (k, held) in folds.iter().enumerate() {
+            let fold = self.train_fold(&data, k, held, &mut timing)?;
+            if a.cv > 0 {
+                self.write_fold(&data, &name, k, held, &fold, &mut pool)?;
+            } else {
+                self.write_model(&name, &fold)?;
+            }
+        }
+        Ok(if a.cv > 0 {
+            self.cv_summary(&name, &pool, &timing)
+        } else {
+            vec![format!("{name}: {}", timing.join(", "))]
+        })
+    }
+
+    /// The model's name and header settings for variant `v` (--stft-window applied).
+    fn model_config(
+        &self,
+        v: Variant,
+        rate_mhz: u32,
+    ) -> anyhow::Result<(String, slipguard_core::blob::ModelConfig)> {
+        let a = self.a;
         let name = match &a.name {
             Some(n) if n.contains("{variant}") => n.replace("{variant}", v.name()),
             Some(n) => n.clone(),
             None => v.name().to_string(),
         };
-        let blob_name = blob_name_of(&a, &name, v);
+        let blob_name = blob_name_of(a, &name, v);
         let mut config = match a.sensor {
-            Sensor::Force => {
-                ev::force_config(v, a.force_diff, a.hidden, &blob_name, cl_cfg.rate_mhz)
-            }
+            Sensor::Force => ev::force_config(v, a.force_diff, a.hidden, &blob_name, rate_mhz),
             Sensor::Suction => ev::suction_config(v, a.force_diff, a.hidden, &blob_name),
         };
         if let Some(n) = a.stft_window.filter(|_| v.uses_bands()) {
@@ -971,9 +1092,21 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
             a.hidden,
             config.macs_per_step()
         );
-        // Pre-training on simulated trials, shared by all folds.
-        let mut timing = Vec::new();
-        let pre = if let Some(p) = &a.init {
+        Ok((name, config))
+    }
+
+    /// The model every fold starts from: --init's weights, else a model pre-trained on the
+    /// simulated sequences `sim_pre` (shared by all folds), else none (each fold starts
+    /// afresh).
+    fn starting_model(
+        &self,
+        v: Variant,
+        config: &slipguard_core::blob::ModelConfig,
+        sim_pre: &[Sequence],
+        timing: &mut Vec<String>,
+    ) -> anyhow::Result<Option<FloatModel>> {
+        let a = self.a;
+        if let Some(p) = &a.init {
             let ck = checkpoint::read(p).with_context(|| format!("--init {}", p.display()))?;
             anyhow::ensure!(
                 ck.model.config.variant == v
@@ -990,201 +1123,224 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
             );
             let mut m = ck.model;
             m.config.name = config.name;
-            Some(m)
-        } else if sim_pre.is_empty() {
-            None
-        } else {
-            let all = refs(&sim_pre);
-            let init = init_model(config, a.seed, &all);
-            let (tr, val) = split_by_trial(&all, a.val_share, a.seed);
-            let tc = TrainConfig {
-                epochs: a.pretrain_epochs,
-                ..run.tc.clone()
-            };
-            let (m, _, spe, _) = run.fit("pretrain", &init, &tr, &val, &tc)?;
-            timing.push(format!("pretrain {spe:.2} s/epoch ({} seqs)", tr.len()));
-            Some(m)
-        };
-        let folds: Vec<Vec<String>> = if a.cv > 0 {
-            let n_trials = real_trials.len();
-            anyhow::ensure!(
-                a.cv <= n_trials,
-                "--cv {}: at most the number of real trials ({n_trials}) folds",
-                a.cv
-            );
-            cv_folds(&real, a.cv)
-        } else {
-            vec![Vec::new()]
-        };
-        let mut armed_hand: Vec<slipguard_data::armed::ArmedGrasp> = Vec::new();
-        let mut pooled: (Vec<&Sequence>, Vec<Vec<_>>, Vec<Vec<_>>) =
-            (Vec::new(), Vec::new(), Vec::new());
-        let data = FoldData {
-            real: &real,
-            sim_mix: &sim_mix,
-            cl_mix: &cl_mix,
-            pre: pre.as_ref(),
-            config,
-            agreement: &agreement_trials,
-            real_trials: &real_trials,
-        };
-        for (k, held) in folds.iter().enumerate() {
-            let train_real: Vec<&Sequence> = real
-                .iter()
-                .filter(|s| !held.contains(&s.cs.trial_id))
-                .collect();
-            let what = if a.cv > 0 {
-                format!("fold {k}")
-            } else {
-                "train".to_string()
-            };
-            let FoldFit {
-                mut model,
-                best_epoch,
-                spe,
-                history,
-                qat_note,
-                tr,
-                val,
-                timing: t,
-            } = run.fit_fold(&data, &train_real, held, a.seed + k as u64, &what)?;
-            timing.extend(t);
-            let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
-            let val_seqs: Vec<&Sequence> = real
-                .iter()
-                .chain(&sim_mix)
-                .filter(|s| val.iter().any(|v| std::ptr::eq(*v, &s.cs)))
-                .collect();
-            let val_ids: std::collections::BTreeSet<&str> =
-                val.iter().map(|v| v.trial_id.as_str()).collect();
-            let val_trials: Vec<&Trial> = real_trials
-                .iter()
-                .filter(|t| val_ids.contains(t.id.as_str()))
-                .collect();
-            let inner = if a.tune_decision && a.tune_decision_cv > 0 && !real_trials.is_empty() {
-                Some(run.inner_cv_runs(&data, &train_real, held, k, &what)?)
-            } else {
-                None
-            };
-            run.decision(&mut model, &val_seqs, &val_trials, &calib, inner.as_deref())?;
-            let mut extra = std::collections::BTreeMap::new();
-            extra.insert("train_command".into(), run.command.clone());
-            extra.insert("best_epoch".into(), best_epoch.to_string());
-            extra.insert("seconds_per_epoch".into(), format!("{spe:.3}"));
-            if let Some(n) = qat_note {
-                extra.insert("qat".into(), n);
-            }
-            let ids = |v: &[&ChannelSequence]| {
-                let mut ids: Vec<String> = v.iter().map(|s| s.trial_id.clone()).collect();
-                ids.sort();
-                ids.dedup();
-                ids.join(",")
-            };
-            extra.insert("val_trials".into(), ids(&val));
-            if a.cv > 0 {
-                extra.insert("heldout_trials".into(), held.join(","));
-                extra.insert("fold".into(), format!("{k}/{}", a.cv));
-            }
-            let ck = Checkpoint { model, extra };
-            if a.cv > 0 {
-                let p = a.out.join(&name).join(format!("fold{k}.safetensors"));
-                checkpoint::write(&p, &ck)?;
-                write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
-                let test: Vec<&Sequence> = real
-                    .iter()
-                    .filter(|s| held.contains(&s.cs.trial_id))
-                    .collect();
-                let p = probabilities(&ck.model, &[], Kind::Float, &test)?;
-                let d = DecisionConfig::of(&ck.model.config);
-                let preds: Vec<_> = p.iter().map(|q| decide(d, q)).collect();
-                let m = metrics_of(&test, &preds);
-                eprintln!(
-                    "  fold {k} held out {}: success {:.2}%, ahead-drop {:?}",
-                    held.join(" "),
-                    100.0 * m.success_rate.unwrap_or(0.0),
-                    m.ahead_drop_rate.map(|x| format!("{:.2}%", 100.0 * x))
-                );
-                let plain = DecisionConfig {
-                    threshold_q15: 16384,
-                    raise_after: 1,
-                    clear_after: 1,
-                };
-                pooled.2.extend(p.iter().map(|q| decide(plain, q)));
-                // The product's figures: the fold's quantized model over its held-out trials,
-                // hand level, armed window.
-                let held_trials: Vec<&Trial> = real_trials
-                    .iter()
-                    .filter(|t| held.contains(&t.id))
-                    .collect();
-                let grasps = with_quantized_model(&ck.model, &calib, |qm| {
-                    let hand = slipguard_core::decision::HandConfig::of(qm.config());
-                    product::windowed_runs(
-                        qm,
-                        &held_trials,
-                        &LabelConfig::default().scaled_to(a.rate_hz),
-                    )
-                    .map(|runs| runs.iter().map(|w| w.grasp_with(&hand)).collect::<Vec<_>>())
-                })??;
-                armed_hand.extend(grasps);
-                pooled.0.extend(test);
-                pooled.1.extend(preds);
-            } else {
-                let p = a.out.join(format!("{name}.safetensors"));
-                checkpoint::write(&p, &ck)?;
-                write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
-                let blob = quantize_model(&ck.model, &calib)?;
-                let bp = a.out.join(format!("{name}.bin"));
-                std::fs::write(&bp, &blob).with_context(|| format!("writing {}", bp.display()))?;
-                eprintln!(
-                    "  wrote {} and {} ({} bytes)",
-                    p.display(),
-                    bp.display(),
-                    blob.len()
-                );
-            }
+            return Ok(Some(m));
         }
-        if a.cv > 0 {
-            let r = slipguard_data::armed::ArmedReport::of(&armed_hand);
-            let line = format!(
-                "{name}: {}-fold CV quantized, hand level, armed window: {}",
-                a.cv,
-                r.summary()
-            );
-            eprintln!("{line}");
-            summary.push(line);
-            let m = metrics_of(&pooled.0, &pooled.1);
-            let m0 = metrics_of(&pooled.0, &pooled.2);
-            let line = format!(
-                "{name}: {}-fold CV float: success {:.2}%, ahead-drop {:.2}%, false alarms {:.2}% (p>=0.5 alone: {:.2}% / {:.2}%) ({} seqs, {} failures); {}",
-                a.cv,
-                100.0 * m.success_rate.unwrap_or(0.0),
-                100.0 * m.ahead_drop_rate.unwrap_or(0.0),
-                100.0 * m.false_alarm_rate.unwrap_or(0.0),
-                100.0 * m0.success_rate.unwrap_or(0.0),
-                100.0 * m0.ahead_drop_rate.unwrap_or(0.0),
-                pooled.0.len(),
-                m.failure_sequences,
-                timing.join(", ")
-            );
-            eprintln!("{line}");
-            summary.push(line);
-        } else {
-            summary.push(format!("{name}: {}", timing.join(", ")));
+        if sim_pre.is_empty() {
+            return Ok(None);
         }
+        let all = training_data::channel_refs(sim_pre);
+        let init = init_model(*config, a.seed, &all);
+        let (tr, val) = split_by_trial(&all, a.val_share, a.seed);
+        let tc = TrainConfig {
+            epochs: a.pretrain_epochs,
+            ..self.tc.clone()
+        };
+        let (m, _, spe, _) = self.fit("pretrain", &init, &tr, &val, &tc)?;
+        timing.push(format!("pretrain {spe:.2} s/epoch ({} seqs)", tr.len()));
+        Ok(Some(m))
     }
-    let log = a.out.join("train-summary.txt");
-    std::fs::write(
-        &log,
-        format!(
-            "{}\n{}\ntotal {:.0} s\n",
-            run.command,
-            summary.join("\n"),
-            t_all.elapsed().as_secs_f64()
-        ),
-    )?;
-    println!("{}", summary.join("\n"));
-    eprintln!("total {:.0} s", t_all.elapsed().as_secs_f64());
-    Ok(())
+
+    /// Each fold's held-out trials (--cv), or one fold holding out nothing.
+    fn folds(&self, real: &[Sequence], n_trials: usize) -> anyhow::Result<Vec<Vec<String>>> {
+        let a = self.a;
+        if a.cv == 0 {
+            return Ok(vec![Vec::new()]);
+        }
+        anyhow::ensure!(
+            a.cv <= n_trials,
+            "--cv {}: at most the number of real trials ({n_trials}) folds",
+            a.cv
+        );
+        Ok(cv_folds(real, a.cv))
+    }
+
+    /// Fold `k` (holding out the trials in `held`): trained ([`Run::fit_fold`]), its decision
+    /// set ([`Run::decision`]), as a checkpoint with the run's notes.
+    fn train_fold<'d>(
+        &self,
+        d: &FoldData<'d>,
+        k: usize,
+        held: &[String],
+        timing: &mut Vec<String>,
+    ) -> anyhow::Result<TrainedFold<'d>> {
+        let a = self.a;
+        let real = &d.sets.real;
+        let train_real: Vec<&Sequence> = real
+            .iter()
+            .filter(|s| !held.contains(&s.cs.trial_id))
+            .collect();
+        let what = if a.cv > 0 {
+            format!("fold {k}")
+        } else {
+            "train".to_string()
+        };
+        let FoldFit {
+            mut model,
+            best_epoch,
+            spe,
+            history,
+            qat_note,
+            tr,
+            val,
+            timing: t,
+        } = self.fit_fold(d, &train_real, held, a.seed + k as u64, &what)?;
+        timing.extend(t);
+        let calib = training_data::calibration_inputs(&tr);
+        let val_seqs: Vec<&Sequence> = real
+            .iter()
+            .chain(&d.sets.sim_mix)
+            .filter(|s| val.iter().any(|v| std::ptr::eq(*v, &s.cs)))
+            .collect();
+        let val_ids: std::collections::BTreeSet<&str> =
+            val.iter().map(|v| v.trial_id.as_str()).collect();
+        let val_trials: Vec<&Trial> = d
+            .real_trials
+            .iter()
+            .filter(|t| val_ids.contains(t.id.as_str()))
+            .collect();
+        let inner = if a.tune_decision && a.tune_decision_cv > 0 && !d.real_trials.is_empty() {
+            Some(self.inner_cv_runs(d, &train_real, held, k, &what)?)
+        } else {
+            None
+        };
+        self.decision(&mut model, &val_seqs, &val_trials, &calib, inner.as_deref())?;
+        let mut extra = std::collections::BTreeMap::new();
+        extra.insert("train_command".into(), self.command.clone());
+        extra.insert("best_epoch".into(), best_epoch.to_string());
+        extra.insert("seconds_per_epoch".into(), format!("{spe:.3}"));
+        if let Some(n) = qat_note {
+            extra.insert("qat".into(), n);
+        }
+        let ids = |v: &[&ChannelSequence]| {
+            let mut ids: Vec<String> = v.iter().map(|s| s.trial_id.clone()).collect();
+            ids.sort();
+            ids.dedup();
+            ids.join(",")
+        };
+        extra.insert("val_trials".into(), ids(&val));
+        if a.cv > 0 {
+            extra.insert("heldout_trials".into(), held.join(","));
+            extra.insert("fold".into(), format!("{k}/{}", a.cv));
+        }
+        Ok(TrainedFold {
+            ck: Checkpoint { model, extra },
+            history,
+            best_epoch,
+            n_train: tr.len(),
+            n_val: val.len(),
+            calib,
+        })
+    }
+
+    /// A cross-validation fold: its checkpoint and logs written, its held-out trials scored
+    /// (float sequences, and the quantized model hand level in the armed window) into `pool`.
+    fn write_fold<'d>(
+        &self,
+        d: &FoldData<'d>,
+        name: &str,
+        k: usize,
+        held: &[String],
+        fold: &TrainedFold<'_>,
+        pool: &mut CvPool<'d>,
+    ) -> anyhow::Result<()> {
+        let a = self.a;
+        let ck = &fold.ck;
+        let p = a.out.join(name).join(format!("fold{k}.safetensors"));
+        checkpoint::write(&p, ck)?;
+        write_train_log(&p, &fold.history, fold.best_epoch, fold.n_train, fold.n_val)?;
+        let test: Vec<&Sequence> = d
+            .sets
+            .real
+            .iter()
+            .filter(|s| held.contains(&s.cs.trial_id))
+            .collect();
+        let p = probabilities(&ck.model, &[], Kind::Float, &test)?;
+        let dc = DecisionConfig::of(&ck.model.config);
+        let preds: Vec<_> = p.iter().map(|q| decide(dc, q)).collect();
+        let m = metrics_of(&test, &preds);
+        eprintln!(
+            "  fold {k} held out {}: success {:.2}%, ahead-drop {:?}",
+            held.join(" "),
+            100.0 * m.success_rate.unwrap_or(0.0),
+            m.ahead_drop_rate.map(|x| format!("{:.2}%", 100.0 * x))
+        );
+        let plain = DecisionConfig {
+            threshold_q15: 16384,
+            raise_after: 1,
+            clear_after: 1,
+        };
+        pool.plain.extend(p.iter().map(|q| decide(plain, q)));
+        // The product's figures: the fold's quantized model over its held-out trials,
+        // hand level, armed window.
+        let held_trials: Vec<&Trial> = d
+            .real_trials
+            .iter()
+            .filter(|t| held.contains(&t.id))
+            .collect();
+        let grasps = with_quantized_model(&ck.model, &fold.calib, |qm| {
+            let hand = slipguard_core::decision::HandConfig::of(qm.config());
+            product::windowed_runs(
+                qm,
+                &held_trials,
+                &LabelConfig::default().scaled_to(a.rate_hz),
+            )
+            .map(|runs| runs.iter().map(|w| w.grasp_with(&hand)).collect::<Vec<_>>())
+        })??;
+        pool.armed_hand.extend(grasps);
+        pool.seqs.extend(test);
+        pool.preds.extend(preds);
+        Ok(())
+    }
+
+    /// The one model (no --cv): checkpoint, logs and quantized blob written.
+    fn write_model(&self, name: &str, fold: &TrainedFold<'_>) -> anyhow::Result<()> {
+        let a = self.a;
+        let p = a.out.join(format!("{name}.safetensors"));
+        checkpoint::write(&p, &fold.ck)?;
+        write_train_log(&p, &fold.history, fold.best_epoch, fold.n_train, fold.n_val)?;
+        let blob = quantize_model(&fold.ck.model, &fold.calib)?;
+        let bp = a.out.join(format!("{name}.bin"));
+        std::fs::write(&bp, &blob).with_context(|| format!("writing {}", bp.display()))?;
+        eprintln!(
+            "  wrote {} and {} ({} bytes)",
+            p.display(),
+            bp.display(),
+            blob.len()
+        );
+        Ok(())
+    }
+
+    /// The cross-validation's two summary lines (quantized hand level in the armed window;
+    /// float), also printed.
+    fn cv_summary(&self, name: &str, pool: &CvPool<'_>, timing: &[String]) -> Vec<String> {
+        let a = self.a;
+        let mut summary = Vec::new();
+        let r = slipguard_data::armed::ArmedReport::of(&pool.armed_hand);
+        let line = format!(
+            "{name}: {}-fold CV quantized, hand level, armed window: {}",
+            a.cv,
+            r.summary()
+        );
+        eprintln!("{line}");
+        summary.push(line);
+        let m = metrics_of(&pool.seqs, &pool.preds);
+        let m0 = metrics_of(&pool.seqs, &pool.plain);
+        let line = format!(
+            "{name}: {}-fold CV float: success {:.2}%, ahead-drop {:.2}%, false alarms {:.2}% (p>=0.5 alone: {:.2}% / {:.2}%) ({} seqs, {} failures); {}",
+            a.cv,
+            100.0 * m.success_rate.unwrap_or(0.0),
+            100.0 * m.ahead_drop_rate.unwrap_or(0.0),
+            100.0 * m.false_alarm_rate.unwrap_or(0.0),
+            100.0 * m0.success_rate.unwrap_or(0.0),
+            100.0 * m0.ahead_drop_rate.unwrap_or(0.0),
+            pool.seqs.len(),
+            m.failure_sequences,
+            timing.join(", ")
+        );
+        eprintln!("{line}");
+        summary.push(line);
+        summary
+    }
 }
 
 /// The --closed-loop-policy blob, checked: a blob that does not parse would only send fault
