@@ -758,9 +758,8 @@ impl Rows {
         Ok(rows)
     }
 
-    /// One row: its width, a time after the previous row's (the first gap noted), at most
-    /// [`MAX_STEPS`] rows, samples within the unit's physical range, a phase that does not go
-    /// back, a label of 0, 1 or empty.
+    /// One row: its width, then its time ([`Rows::push_time`]), samples
+    /// ([`Rows::push_samples`]), phase and label ([`Rows::push_phase`], [`Rows::push_label`]).
     fn push(
         &mut self,
         path: &Path,
@@ -780,8 +779,22 @@ impl Rows {
             ));
         }
         check_width(path, line, &f, cols.width)?;
-        let t = parse_number(path, line, 1, "time_s", &f[0])?;
-        let t: f64 = f[0].parse().unwrap_or(t as f64);
+        self.push_time(path, line, &f[0], rate_hz)?;
+        self.push_samples(path, line, &f, cols, unit)?;
+        if let Some(pc) = cols.phase {
+            self.push_phase(path, line, pc, &f[pc])?;
+        }
+        if let Some(lc) = cols.label {
+            self.push_label(path, line, lc, &f[lc])?;
+        }
+        Ok(())
+    }
+
+    /// The row's time: after the previous row's (the first gap of more than 1.5 periods
+    /// noted), within [`MAX_STEPS`] rows.
+    fn push_time(&mut self, path: &Path, line: usize, field: &str, rate_hz: f32) -> Result<()> {
+        let t = parse_number(path, line, 1, "time_s", field)?;
+        let t: f64 = field.parse().unwrap_or(t as f64);
         if let Some(&(prev, _)) = self.times.last()
             && t <= prev
         {
@@ -809,6 +822,18 @@ impl Rows {
             ));
         }
         self.times.push((t, line));
+        Ok(())
+    }
+
+    /// The row's samples, one per channel, each within the unit's physical range.
+    fn push_samples(
+        &mut self,
+        path: &Path,
+        line: usize,
+        f: &[String],
+        cols: &Columns,
+        unit: &Unit,
+    ) -> Result<()> {
         for (c, samples_c) in self.samples.iter_mut().enumerate() {
             let name = &cols.channel_names[c];
             let v = parse_number(path, line, c + 2, name, &f[c + 1])?;
@@ -825,40 +850,46 @@ impl Rows {
             }
             samples_c.push(v);
         }
-        if let Some(pc) = cols.phase {
-            let p: Phase = f[pc]
-                .parse()
-                .map_err(|m: String| parse_error(path, line, Some(pc + 1), Some("phase"), m))?;
-            if let Some(&prev) = self.phases.last()
-                && (p as u8) < (prev as u8)
-            {
+        Ok(())
+    }
+
+    /// The row's phase (column index `pc`): a phase name that does not go back.
+    fn push_phase(&mut self, path: &Path, line: usize, pc: usize, field: &str) -> Result<()> {
+        let p: Phase = field
+            .parse()
+            .map_err(|m: String| parse_error(path, line, Some(pc + 1), Some("phase"), m))?;
+        if let Some(&prev) = self.phases.last()
+            && (p as u8) < (prev as u8)
+        {
+            return Err(parse_error(
+                path,
+                line,
+                Some(pc + 1),
+                Some("phase"),
+                format!("phase goes back from {} to {}", prev.name(), p.name()),
+            ));
+        }
+        self.phases.push(p);
+        Ok(())
+    }
+
+    /// The row's label (column index `lc`): 0 (stable), 1 (unstable) or empty.
+    fn push_label(&mut self, path: &Path, line: usize, lc: usize, field: &str) -> Result<()> {
+        let v = field.trim();
+        self.labels.push(match v {
+            "" => None,
+            "0" => Some(Stability::Stable),
+            "1" => Some(Stability::Unstable),
+            _ => {
                 return Err(parse_error(
                     path,
                     line,
-                    Some(pc + 1),
-                    Some("phase"),
-                    format!("phase goes back from {} to {}", prev.name(), p.name()),
+                    Some(lc + 1),
+                    Some("label"),
+                    format!("label must be 0 (stable), 1 (unstable) or empty, not `{v}`"),
                 ));
             }
-            self.phases.push(p);
-        }
-        if let Some(lc) = cols.label {
-            let v = f[lc].trim();
-            self.labels.push(match v {
-                "" => None,
-                "0" => Some(Stability::Stable),
-                "1" => Some(Stability::Unstable),
-                _ => {
-                    return Err(parse_error(
-                        path,
-                        line,
-                        Some(lc + 1),
-                        Some("label"),
-                        format!("label must be 0 (stable), 1 (unstable) or empty, not `{v}`"),
-                    ));
-                }
-            });
-        }
+        });
         Ok(())
     }
 
