@@ -336,16 +336,7 @@ impl Run<'_> {
         calib: &[&[f32]],
         agreement: Vec<Vec<f32>>,
     ) -> anyhow::Result<QatRun> {
-        let bits = if self.a.qat_cell_max > 0.0 {
-            let c = slipguard_core::quantize::cell_bits_for(
-                self.a.qat_cell_max as f32 * slipguard_core::quantize::CELL_HEADROOM,
-            );
-            vec![c; model.lstms.len()]
-        } else {
-            slipguard_core::quantize::quantize(model, calib, None)?
-                .1
-                .cell_frac_bits
-        };
+        let bits = self.qat_cell_bits(model, calib)?;
         let qc = QatConfig {
             epochs: self.a.qat_epochs,
             lr: self.a.qat_lr,
@@ -358,26 +349,7 @@ impl Run<'_> {
         let seqs: Vec<&[f32]> = val.iter().map(|s| s.samples.as_slice()).collect();
         let before = blob_agreement(model, calib, &seqs)?;
         let what = format!("{what} QAT");
-        let pb = bar(qc.epochs as u64, &what);
-        pb.enable_steady_tick(std::time::Duration::from_millis(500));
-        let out = qat_finetune(model, tr, val, &self.tc, &qc, |p| match p {
-            Progress::Batch {
-                epoch,
-                batch,
-                batches,
-                train_loss,
-            } => pb.set_message(format!(
-                "{what} epoch {epoch} batch {batch}/{batches} train loss {train_loss:.4}"
-            )),
-            Progress::Epoch(l) => {
-                pb.set_position(l.epoch as u64);
-                pb.set_message(format!(
-                    "{what} (epoch {}: val loss {:.4}, {:.1} s)",
-                    l.epoch, l.val_loss, l.seconds
-                ));
-            }
-        })?;
-        pb.finish_and_clear();
+        let out = self.qat_fit(&what, model, tr, val, &qc)?;
         let dps = out.agreement.clone();
         let out = out.trained;
         let after = blob_agreement(&out.model, calib, &seqs)?;
@@ -412,6 +384,53 @@ impl Run<'_> {
             seconds_per_epoch: spe,
             history: out.history,
         })
+    }
+
+    /// The cell format QAT fine-tunes in: the one covering 1.25× --qat-cell-max, else the
+    /// one the quantizer calibrates from `calib`.
+    fn qat_cell_bits(&self, model: &FloatModel, calib: &[&[f32]]) -> anyhow::Result<Vec<u8>> {
+        Ok(if self.a.qat_cell_max > 0.0 {
+            let c = slipguard_core::quantize::cell_bits_for(
+                self.a.qat_cell_max as f32 * slipguard_core::quantize::CELL_HEADROOM,
+            );
+            vec![c; model.lstms.len()]
+        } else {
+            slipguard_core::quantize::quantize(model, calib, None)?
+                .1
+                .cell_frac_bits
+        })
+    }
+
+    /// `qat_finetune` with a progress bar.
+    fn qat_fit(
+        &self,
+        what: &str,
+        model: &FloatModel,
+        tr: &[&ChannelSequence],
+        val: &[&ChannelSequence],
+        qc: &QatConfig,
+    ) -> anyhow::Result<slipguard_learn::qat::QatOutcome> {
+        let pb = bar(qc.epochs as u64, what);
+        pb.enable_steady_tick(std::time::Duration::from_millis(500));
+        let out = qat_finetune(model, tr, val, &self.tc, qc, |p| match p {
+            Progress::Batch {
+                epoch,
+                batch,
+                batches,
+                train_loss,
+            } => pb.set_message(format!(
+                "{what} epoch {epoch} batch {batch}/{batches} train loss {train_loss:.4}"
+            )),
+            Progress::Epoch(l) => {
+                pb.set_position(l.epoch as u64);
+                pb.set_message(format!(
+                    "{what} (epoch {}: val loss {:.4}, {:.1} s)",
+                    l.epoch, l.val_loss, l.seconds
+                ));
+            }
+        })?;
+        pb.finish_and_clear();
+        Ok(out)
     }
 
     /// Trains one model on `train_real` (split by trial with `split_seed` for early stopping)
@@ -514,6 +533,9 @@ impl Run<'_> {
         Ok(runs)
     }
 
+    /// Sets the model's decision: with --tune-decision tuned on the validation trials (or
+    /// the inner cross-validation's runs `inner`) in the armed window, else on the validation
+    /// sequences; without it, the options' threshold and hysteresis.
     fn decision(
         &self,
         model: &mut FloatModel,
@@ -523,63 +545,9 @@ impl Run<'_> {
         inner: Option<&[product::WindowedRun]>,
     ) -> anyhow::Result<()> {
         let d = if self.a.tune_decision && (inner.is_some() || !val_trials.is_empty()) {
-            // The product's decision: the hand flag in the armed window of the validation
-            // trials (or of the inner cross-validation's held-out trials), with the quantized
-            // model the firmware runs.
-            let (runs, base) = with_quantized_model(model, calib, |m| {
-                let runs = match inner {
-                    Some(r) => r.to_vec(),
-                    None => product::windowed_runs(
-                        m,
-                        val_trials,
-                        &LabelConfig::default().scaled_to(self.a.rate_hz),
-                    )?,
-                };
-                anyhow::Ok((runs, slipguard_core::decision::HandConfig::of(m.config())))
-            })??;
-            let on = match inner {
-                Some(_) => format!("{}-fold inner CV held-out", self.a.tune_decision_cv),
-                None => "validation".to_string(),
-            };
-            let curve = product::operating_curve(
-                &runs,
-                &base,
-                &product::CURVE_THRESHOLDS,
-                &product::CURVE_RAISE_AFTER
-                    .iter()
-                    .copied()
-                    .filter(|&r| r >= self.a.min_raise)
-                    .collect::<Vec<_>>(),
-            );
-            let pick = product::pick_decision(&curve, self.a.max_false_alarm_rate)
-                .ok_or_else(|| anyhow::anyhow!("no validation trial with contact"))?;
-            eprintln!(
-                "  decision tuned on {} {on} trials (hand level, armed window): threshold {:.2}, raise {}: {}/{} failures ≥ 300 ms ahead, {}/{} successes with a false alarm",
-                runs.len(),
-                pick.threshold,
-                pick.raise_after,
-                pick.detected_300ms,
-                pick.failures,
-                pick.false_alarm_grasps,
-                pick.successes
-            );
-            DecisionConfig {
-                threshold_q15: Q15::from_f64(pick.threshold).header_threshold() as i16,
-                raise_after: pick.raise_after,
-                clear_after: base.decision.clear_after,
-            }
+            self.decision_on_armed_window(model, val_trials, calib, inner)?
         } else if self.a.tune_decision && !val.is_empty() {
-            let p = probabilities(model, &[], Kind::Float, val)?;
-            let (d, m) = tune_decision(&p, val, self.a.min_raise);
-            eprintln!(
-                "  decision tuned on validation sequences: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
-                Q15(d.threshold_q15).to_f64(),
-                d.raise_after,
-                d.clear_after,
-                100.0 * m.success_rate.unwrap_or(0.0),
-                100.0 * m.ahead_drop_rate.unwrap_or(0.0)
-            );
-            d
+            self.decision_on_sequences(model, val)?
         } else {
             DecisionConfig {
                 threshold_q15: Q15::from_f64(self.a.threshold).header_threshold() as i16,
@@ -589,6 +557,80 @@ impl Run<'_> {
         };
         set_decision(&mut model.config, d);
         Ok(())
+    }
+
+    /// The product's decision: the hand flag in the armed window of the validation trials (or
+    /// of the inner cross-validation's held-out trials), with the quantized model the firmware
+    /// runs; picked on the operating curve by --max-false-alarm-rate, raise ≥ --min-raise.
+    fn decision_on_armed_window(
+        &self,
+        model: &FloatModel,
+        val_trials: &[&Trial],
+        calib: &[&[f32]],
+        inner: Option<&[product::WindowedRun]>,
+    ) -> anyhow::Result<DecisionConfig> {
+        let (runs, base) = with_quantized_model(model, calib, |m| {
+            let runs = match inner {
+                Some(r) => r.to_vec(),
+                None => product::windowed_runs(
+                    m,
+                    val_trials,
+                    &LabelConfig::default().scaled_to(self.a.rate_hz),
+                )?,
+            };
+            anyhow::Ok((runs, slipguard_core::decision::HandConfig::of(m.config())))
+        })??;
+        let on = match inner {
+            Some(_) => format!("{}-fold inner CV held-out", self.a.tune_decision_cv),
+            None => "validation".to_string(),
+        };
+        let curve = product::operating_curve(
+            &runs,
+            &base,
+            &product::CURVE_THRESHOLDS,
+            &product::CURVE_RAISE_AFTER
+                .iter()
+                .copied()
+                .filter(|&r| r >= self.a.min_raise)
+                .collect::<Vec<_>>(),
+        );
+        let pick = product::pick_decision(&curve, self.a.max_false_alarm_rate)
+            .ok_or_else(|| anyhow::anyhow!("no validation trial with contact"))?;
+        eprintln!(
+            "  decision tuned on {} {on} trials (hand level, armed window): threshold {:.2}, raise {}: {}/{} failures ≥ 300 ms ahead, {}/{} successes with a false alarm",
+            runs.len(),
+            pick.threshold,
+            pick.raise_after,
+            pick.detected_300ms,
+            pick.failures,
+            pick.false_alarm_grasps,
+            pick.successes
+        );
+        Ok(DecisionConfig {
+            threshold_q15: Q15::from_f64(pick.threshold).header_threshold() as i16,
+            raise_after: pick.raise_after,
+            clear_after: base.decision.clear_after,
+        })
+    }
+
+    /// The decision tuned on the float model's validation sequences (no validation trials:
+    /// simulated data only).
+    fn decision_on_sequences(
+        &self,
+        model: &FloatModel,
+        val: &[&Sequence],
+    ) -> anyhow::Result<DecisionConfig> {
+        let p = probabilities(model, &[], Kind::Float, val)?;
+        let (d, m) = tune_decision(&p, val, self.a.min_raise);
+        eprintln!(
+            "  decision tuned on validation sequences: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
+            Q15(d.threshold_q15).to_f64(),
+            d.raise_after,
+            d.clear_after,
+            100.0 * m.success_rate.unwrap_or(0.0),
+            100.0 * m.ahead_drop_rate.unwrap_or(0.0)
+        );
+        Ok(d)
     }
 }
 
@@ -636,29 +678,57 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
         .rate_arg
         .is_some_and(|r| (r - PAPER_RATE_HZ).abs() > 0.005 * PAPER_RATE_HZ);
     if a.path.is_none() && (not_paper || a.sensor_arg == Some(Sensor::Suction)) {
-        a.sensor = a.sensor_arg.unwrap_or_default();
-        let profile = profile_of(a.sensor);
-        a.rate_hz = match (a.rate_arg, a.sensor) {
-            (Some(r), _) => r,
-            (None, Sensor::Suction) => profile.default_rate_mhz() as f32 / 1000.0,
-            (None, Sensor::Force) => PAPER_RATE_HZ,
-        };
-        check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
+        simulated_only(a)?;
         return Ok(None);
     }
     let (path, trials) = load_real_trials(a.path.as_deref())?;
     let Some(first) = trials.first() else {
         anyhow::bail!("{}: no recordings", path.display());
     };
-    let (rate, unit) = (first.rate_hz, first.unit.clone());
-    let sensor = match unit {
+    let sensor = sensor_of_data(&path, first)?;
+    check_against_data(a, &path, first, sensor)?;
+    a.sensor = sensor;
+    a.rate_hz = first.rate_hz;
+    check::profile_rate(
+        &format!("{}: recorded at", path.display()),
+        first.rate_hz as f64,
+        &[profile_of(sensor)],
+    )
+    .map_err(|e| anyhow::anyhow!("{e}: record at a rate the board runs"))?;
+    check_labels(&path, &trials)?;
+    Ok(Some((path, trials)))
+}
+
+/// No data folder and a rate or sensor the shipped real trials are not at: the sensor
+/// (--sensor, else force) and rate (--rate-hz, else the profile's) of simulated trials only,
+/// checked against the profile.
+fn simulated_only(a: &mut Args) -> anyhow::Result<()> {
+    a.sensor = a.sensor_arg.unwrap_or_default();
+    let profile = profile_of(a.sensor);
+    a.rate_hz = match (a.rate_arg, a.sensor) {
+        (Some(r), _) => r,
+        (None, Sensor::Suction) => profile.default_rate_mhz() as f32 / 1000.0,
+        (None, Sensor::Force) => PAPER_RATE_HZ,
+    };
+    check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
+    Ok(())
+}
+
+/// The sensor of the recordings in `path` from their unit (`first`: the first recording).
+fn sensor_of_data(path: &Path, first: &Trial) -> anyhow::Result<Sensor> {
+    Ok(match first.unit {
         slipguard_data::Unit::MilliNewton => Sensor::Force,
         slipguard_data::Unit::Counts => Sensor::Suction,
         ref u => anyhow::bail!(
             "{}: recordings in {u}: train takes force in mN or suction pressure in counts",
             path.display()
         ),
-    };
+    })
+}
+
+/// --sensor and --rate-hz, when given, must be the data's (`sensor`, `first`'s rate).
+fn check_against_data(a: &Args, path: &Path, first: &Trial, sensor: Sensor) -> anyhow::Result<()> {
+    let rate = first.rate_hz;
     let name = |s: Sensor| match s {
         Sensor::Force => "force (mN)",
         Sensor::Suction => "suction (counts)",
@@ -681,14 +751,12 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
             first.id
         );
     }
-    a.sensor = sensor;
-    a.rate_hz = rate;
-    check::profile_rate(
-        &format!("{}: recorded at", path.display()),
-        rate as f64,
-        &[profile_of(sensor)],
-    )
-    .map_err(|e| anyhow::anyhow!("{e}: record at a rate the board runs"))?;
+    Ok(())
+}
+
+/// Refuses recordings none of which has an outcome; names those skipped for having none, and
+/// the failures without a lasting drop.
+fn check_labels(path: &Path, trials: &[Trial]) -> anyhow::Result<()> {
     let unknown: Vec<&str> = trials
         .iter()
         .filter(|t| t.outcome == slipguard_data::Outcome::Unknown)
@@ -722,7 +790,7 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
             no_drop.join(", ")
         );
     }
-    Ok(Some((path, trials)))
+    Ok(())
 }
 
 fn profile_of(sensor: Sensor) -> slipguard_app::profile::Profile {
