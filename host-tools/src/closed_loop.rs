@@ -945,7 +945,7 @@ pub fn training_sequences(seed: u64, count: usize, cfg: &TrainingConfig) -> Vec<
                     },
                 },
                 lift,
-                rate_hz: cfg.rate_mhz.0 as f32 / 1000.0,
+                rate_hz: cfg.rate_mhz.hz_f32(),
             });
         }
     }

@@ -419,7 +419,7 @@ impl Monitor {
         let mut t = Trial::new(
             id,
             Unit::Other("p_unstable".into()),
-            rate_mhz.0 as f32 / 1000.0,
+            rate_mhz.hz_f32(),
             samples,
         );
         t.sensor = SensorKind::Other("flags".into());
@@ -697,7 +697,7 @@ impl Recorder {
         } else {
             Unit::Counts
         };
-        let mut t = Trial::new(&self.id, unit, rate.0 as f32 / 1000.0, samples);
+        let mut t = Trial::new(&self.id, unit, rate.hz_f32(), samples);
         t.source = "slipguard monitor (samples stream)".into();
         t.extra.insert(
             "monitor_first_frame_index".into(),

@@ -614,7 +614,7 @@ fn run_upload(a: UploadArgs) -> ExitCode {
             println!(
                 "upload: OK, model '{name}' {:#010x} at {:.1} Hz active in slot {} (sequence {}) after the board's restart, {} frames resent, {:.1} s waited for release",
                 u.info.model_crc,
-                u.info.sample_rate_mhz.0 as f64 / 1000.0,
+                u.info.sample_rate_mhz.hz(),
                 u.slot,
                 u.seq,
                 u.resent,

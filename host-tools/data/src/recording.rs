@@ -21,7 +21,8 @@ use std::io::Write as _;
 use std::path::Path;
 
 use crate::csvtext::{
-    check_width, from_line, lines, parse_error, parse_number, read_text, records, strip_bom,
+    Line, Record, check_width, from_line, lines, parse_error, parse_number, read_text, records,
+    strip_bom,
 };
 use crate::error::{DataError, Result};
 use crate::labels::{LabelConfig, annotate};
@@ -390,29 +391,67 @@ pub fn read_recording(path: &Path, cfg: &LabelConfig) -> Result<Trial> {
     Ok(trial)
 }
 
-/// Parse recording text without annotating (`path` is only used in errors).
+/// Parse recording text without annotating (`path` is only used in errors). The steps, in
+/// the order their errors are reported: the preamble (magic line and `# key: value`
+/// metadata; rate, unit and outcome), the header's columns, the rows, the time column against
+/// the stated rate, the phase marks, then the trial itself, validated.
 pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
     let text = strip_bom(text);
-    let mut it = lines(text).peekable();
-    let first = it
+    let meta = Preamble::read(text, path)?;
+    let rate_hz = meta.rate_hz()?;
+    let unit = meta.unit()?;
+    let outcome = meta.outcome()?;
+    // Header and rows: the CSV body after the preamble.
+    let body_line = meta.entries.len() + 2;
+    let mut body = records(path, from_line(text, body_line), body_line)?.into_iter();
+    let header = body
         .next()
-        .ok_or_else(|| parse_error(path, 1, None, None, "empty file"))?;
-    if first.text != MAGIC {
-        return Err(parse_error(
-            path,
-            1,
-            None,
-            None,
-            format!("first line must be `{MAGIC}`"),
-        ));
-    }
-    // Metadata.
-    let mut meta: Vec<(String, String, usize)> = Vec::new();
-    while let Some(l) = it.peek() {
-        if !l.text.starts_with('#') {
-            break;
+        .ok_or_else(|| parse_error(path, body_line, None, None, "missing header line"))?;
+    let columns = Columns::read(path, &header)?;
+    let rows = Rows::read(path, body, &columns, &unit, rate_hz)?;
+    rows.check_time(path, &meta, rate_hz, header.number)?;
+    let marks = meta.marks(&rows.phases)?;
+    meta.into_trial(unit, rate_hz, outcome, marks, columns, rows)
+}
+
+/// A recording's metadata: the `# key: value` lines after the magic line, in file order, each
+/// with its 1-based line number (errors about a value name its line).
+struct Preamble<'p> {
+    path: &'p Path,
+    entries: Vec<(String, String, usize)>,
+}
+
+impl<'p> Preamble<'p> {
+    /// The magic line, then every `#` line up to the header, each checked by [`Self::entry`].
+    fn read(text: &str, path: &'p Path) -> Result<Self> {
+        let mut it = lines(text).peekable();
+        let first = it
+            .next()
+            .ok_or_else(|| parse_error(path, 1, None, None, "empty file"))?;
+        if first.text != MAGIC {
+            return Err(parse_error(
+                path,
+                1,
+                None,
+                None,
+                format!("first line must be `{MAGIC}`"),
+            ));
         }
-        let l = it.next().expect("peeked");
+        let mut meta = Preamble {
+            path,
+            entries: Vec::new(),
+        };
+        while let Some(l) = it.next_if(|l| l.text.starts_with('#')) {
+            let (k, v) = meta.entry(&l)?;
+            meta.entries.push((k, v, l.number));
+        }
+        Ok(meta)
+    }
+
+    /// One metadata line as (key, value), both trimmed: `# key: value` with a key of
+    /// lower-case letters, digits and `_` that is not given yet.
+    fn entry(&self, l: &Line<'_>) -> Result<(String, String)> {
+        let path = self.path;
         let body = l.text[1..].trim_start();
         let Some((k, v)) = body.split_once(':') else {
             return Err(parse_error(
@@ -437,7 +476,7 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
                 format!("metadata key `{k}` must be lower-case letters, digits and `_`"),
             ));
         }
-        if meta.iter().any(|(mk, _, _)| mk == k) {
+        if self.get(k).is_some() {
             return Err(parse_error(
                 path,
                 l.number,
@@ -446,15 +485,26 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
                 format!("metadata key `{k}` given twice"),
             ));
         }
-        meta.push((k.to_string(), v.trim().to_string(), l.number));
+        Ok((k.to_string(), v.trim().to_string()))
     }
-    let get = |k: &str| meta.iter().find(|(mk, _, _)| mk == k);
-    let meta_step = |k: &str| -> Result<Option<usize>> {
-        match get(k) {
+
+    /// The entry of key `k`, if given.
+    fn get(&self, k: &str) -> Option<&(String, String, usize)> {
+        self.entries.iter().find(|(mk, _, _)| mk == k)
+    }
+
+    /// The line of key `k` for an error about it (1, the magic line, when it is not given).
+    fn line_of(&self, k: &str) -> usize {
+        self.get(k).map_or(1, |m| m.2)
+    }
+
+    /// Key `k` as a step index, if given.
+    fn step(&self, k: &str) -> Result<Option<usize>> {
+        match self.get(k) {
             None => Ok(None),
             Some((_, v, line)) => v.parse::<usize>().map(Some).map_err(|_| {
                 parse_error(
-                    path,
+                    self.path,
                     *line,
                     None,
                     None,
@@ -462,251 +512,61 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
                 )
             }),
         }
-    };
-    let rate_hz = match get("rate_hz") {
-        None => {
-            return Err(DataError::MissingMetadata {
-                path: path.to_path_buf(),
+    }
+
+    /// `rate_hz` (required), within [`MIN_RATE_HZ`]..=[`MAX_RATE_HZ`].
+    fn rate_hz(&self) -> Result<f32> {
+        match self.get("rate_hz") {
+            None => Err(DataError::MissingMetadata {
+                path: self.path.to_path_buf(),
                 key: "rate_hz".into(),
-            });
-        }
-        Some((_, v, line)) => match v.parse::<f32>() {
-            Ok(r) if (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&r) => r,
-            _ => {
-                return Err(parse_error(
-                    path,
+            }),
+            Some((_, v, line)) => match v.parse::<f32>() {
+                Ok(r) if (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&r) => Ok(r),
+                _ => Err(parse_error(
+                    self.path,
                     *line,
                     None,
                     None,
                     format!("rate_hz must be a number in {MIN_RATE_HZ}..={MAX_RATE_HZ}, not `{v}`"),
-                ));
-            }
-        },
-    };
-    let unit: Unit = match get("unit") {
-        None => {
-            return Err(DataError::MissingMetadata {
-                path: path.to_path_buf(),
+                )),
+            },
+        }
+    }
+
+    /// `unit` (required; any text is a unit).
+    fn unit(&self) -> Result<Unit> {
+        match self.get("unit") {
+            None => Err(DataError::MissingMetadata {
+                path: self.path.to_path_buf(),
                 key: "unit".into(),
-            });
-        }
-        Some((_, v, _)) => v.parse().expect("infallible"),
-    };
-    let outcome = match get("outcome") {
-        None => Outcome::Unknown,
-        Some((_, v, line)) => v
-            .parse::<Outcome>()
-            .map_err(|m| parse_error(path, *line, None, None, m))?,
-    };
-
-    // Header and rows: the CSV body after the preamble.
-    let body_line = meta.len() + 2;
-    let mut body = records(path, from_line(text, body_line), body_line)?.into_iter();
-    let header = body
-        .next()
-        .ok_or_else(|| parse_error(path, body_line, None, None, "missing header line"))?;
-    let cols: Vec<&str> = header.fields.iter().map(String::as_str).collect();
-    if cols[0] != "time_s" {
-        return Err(DataError::MissingColumn {
-            path: path.to_path_buf(),
-            line: header.number,
-            column: "time_s (first column)".into(),
-        });
-    }
-    let mut phase_col = None;
-    let mut label_col = None;
-    let mut channel_names = Vec::new();
-    for (i, &c) in cols.iter().enumerate().skip(1) {
-        let err = |m: String| parse_error(path, header.number, Some(i + 1), Some(c), m);
-        match c {
-            "phase" => {
-                if phase_col.is_some() || label_col.is_some() {
-                    return Err(err(
-                        "`phase` must come once, after the channels and before `label`".into(),
-                    ));
-                }
-                phase_col = Some(i);
-            }
-            "label" => {
-                if label_col.is_some() {
-                    return Err(err("`label` given twice".into()));
-                }
-                label_col = Some(i);
-            }
-            "" => return Err(err("empty column name".into())),
-            "time_s" => return Err(err("`time_s` must be the first column only".into())),
-            _ => {
-                if phase_col.is_some() || label_col.is_some() {
-                    return Err(err(
-                        "channel columns must come before `phase` and `label`".into()
-                    ));
-                }
-                if channel_names.iter().any(|n| n == c) {
-                    return Err(err(format!("channel `{c}` given twice")));
-                }
-                channel_names.push(c.to_string());
-            }
-        }
-    }
-    if channel_names.is_empty() {
-        return Err(DataError::MissingColumn {
-            path: path.to_path_buf(),
-            line: header.number,
-            column: "at least one channel".into(),
-        });
-    }
-
-    // Rows.
-    let nch = channel_names.len();
-    let mut samples = vec![Vec::new(); nch];
-    let mut times: Vec<(f64, usize)> = Vec::new();
-    let mut phases: Vec<Phase> = Vec::new();
-    let mut labels: Vec<Option<Stability>> = Vec::new();
-    // The first step of more than 1.5 periods (reported after the rate check).
-    let mut gap = None;
-    for r in body {
-        let (line, f) = (r.number, r.fields);
-        if f[0].starts_with('#') {
-            return Err(parse_error(
-                path,
-                line,
-                Some(1),
-                None,
-                "metadata lines (`#`) are only allowed before the header",
-            ));
-        }
-        check_width(path, line, &f, cols.len())?;
-        let t = parse_number(path, line, 1, "time_s", &f[0])?;
-        let t: f64 = f[0].parse().unwrap_or(t as f64);
-        if let Some(&(prev, _)) = times.last()
-            && t <= prev
-        {
-            return Err(parse_error(
-                path,
-                line,
-                Some(1),
-                Some("time_s"),
-                format!("time {t} is not after the previous row's {prev}"),
-            ));
-        }
-        if let Some(&(prev, prev_line)) = times.last()
-            && gap.is_none()
-            && (t - prev) * rate_hz as f64 > 1.5
-        {
-            gap = Some((prev, prev_line, t, line));
-        }
-        if times.len() == MAX_STEPS {
-            return Err(parse_error(
-                path,
-                line,
-                None,
-                None,
-                format!("more than {MAX_STEPS} data rows (the format's maximum length)"),
-            ));
-        }
-        times.push((t, line));
-        for (c, samples_c) in samples.iter_mut().enumerate() {
-            let v = parse_number(path, line, c + 2, &channel_names[c], &f[c + 1])?;
-            if let Some((lo, hi)) = physical_range(&unit)
-                && !(lo..=hi).contains(&v)
-            {
-                return Err(parse_error(
-                    path,
-                    line,
-                    Some(c + 2),
-                    Some(&channel_names[c]),
-                    format!("{v} {unit} is outside the sensor's physical range {lo}..={hi} {unit}"),
-                ));
-            }
-            samples_c.push(v);
-        }
-        if let Some(pc) = phase_col {
-            let p: Phase = f[pc]
-                .parse()
-                .map_err(|m: String| parse_error(path, line, Some(pc + 1), Some("phase"), m))?;
-            if let Some(&prev) = phases.last()
-                && (p as u8) < (prev as u8)
-            {
-                return Err(parse_error(
-                    path,
-                    line,
-                    Some(pc + 1),
-                    Some("phase"),
-                    format!("phase goes back from {} to {}", prev.name(), p.name()),
-                ));
-            }
-            phases.push(p);
-        }
-        if let Some(lc) = label_col {
-            let v = f[lc].trim();
-            labels.push(match v {
-                "" => None,
-                "0" => Some(Stability::Stable),
-                "1" => Some(Stability::Unstable),
-                _ => {
-                    return Err(parse_error(
-                        path,
-                        line,
-                        Some(lc + 1),
-                        Some("label"),
-                        format!("label must be 0 (stable), 1 (unstable) or empty, not `{v}`"),
-                    ));
-                }
-            });
-        }
-    }
-    let n = times.len();
-    if n == 0 {
-        return Err(parse_error(
-            path,
-            header.number + 1,
-            None,
-            None,
-            "no data rows",
-        ));
-    }
-    // The stated rate must match the time column (mean step within 5 %).
-    if n >= 2 {
-        let mean_dt = (times[n - 1].0 - times[0].0) / (n - 1) as f64;
-        let want = 1.0 / rate_hz as f64;
-        if (mean_dt - want).abs() > 0.05 * want {
-            let line = get("rate_hz").map_or(1, |m| m.2);
-            return Err(parse_error(
-                path,
-                line,
-                None,
-                None,
-                format!(
-                    "rate_hz {rate_hz} does not match the time column (mean step {mean_dt:.6} s = {:.3} Hz)",
-                    1.0 / mean_dt
-                ),
-            ));
+            }),
+            Some((_, v, _)) => Ok(v.parse().expect("infallible")),
         }
     }
 
-    if let Some((prev, prev_line, t, line)) = gap {
-        return Err(parse_error(
-            path,
-            line,
-            Some(1),
-            Some("time_s"),
-            format!(
-                "time jumps from {prev} s (line {prev_line}) to {t} s, about {:.0} steps at \
-                 {rate_hz} Hz: rows are missing (lost frames); the monitor fills such gaps and \
-                 lists them under `monitor_gaps`",
-                (t - prev) * rate_hz as f64 - 1.0
-            ),
-        ));
+    /// `outcome` (unknown when not given).
+    fn outcome(&self) -> Result<Outcome> {
+        match self.get("outcome") {
+            None => Ok(Outcome::Unknown),
+            Some((_, v, line)) => v
+                .parse::<Outcome>()
+                .map_err(|m| parse_error(self.path, *line, None, None, m)),
+        }
     }
 
-    // Marks: from metadata and/or the phase column; they must agree.
-    let mut marks = PhaseMarks {
-        grasp_start: meta_step("grasp_start")?,
-        lift_start: meta_step("lift_start")?,
-        open_start: meta_step("open_start")?,
-        release: meta_step("release")?,
-    };
-    if !phases.is_empty() {
+    /// The phase marks from the metadata and/or the phase column (`phases`, one per row, may
+    /// be empty); where both give a mark they must agree.
+    fn marks(&self, phases: &[Phase]) -> Result<PhaseMarks> {
+        let mut marks = PhaseMarks {
+            grasp_start: self.step("grasp_start")?,
+            lift_start: self.step("lift_start")?,
+            open_start: self.step("open_start")?,
+            release: self.step("release")?,
+        };
+        if phases.is_empty() {
+            return Ok(marks);
+        }
         let first = |p: Phase| phases.iter().position(|&q| q as u8 >= p as u8);
         let from_col = [
             ("grasp_start", first(Phase::Grasp), &mut marks.grasp_start),
@@ -722,10 +582,9 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
         for (k, col, m) in from_col {
             match (*m, col) {
                 (Some(a), Some(b)) if a != b => {
-                    let line = get(k).map_or(1, |g| g.2);
                     return Err(parse_error(
-                        path,
-                        line,
+                        self.path,
+                        self.line_of(k),
                         None,
                         None,
                         format!("`{k}: {a}` disagrees with the phase column (step {b})"),
@@ -735,37 +594,355 @@ pub fn parse_recording(text: &str, path: &Path) -> Result<Trial> {
                 _ => {}
             }
         }
+        Ok(marks)
     }
-    let id = get("id").map_or_else(
-        || {
-            path.file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default()
-        },
-        |m| m.1.clone(),
-    );
-    let mut trial = Trial::new(id, unit, rate_hz, samples);
-    trial.channel_names = channel_names;
-    if let Some((_, v, _)) = get("sensor") {
-        trial.sensor = v.parse::<SensorKind>().expect("infallible");
-    }
-    trial.marks = marks;
-    trial.outcome = outcome;
-    trial.drop_step = meta_step("drop_step")?;
-    trial.slip_onset_step = meta_step("slip_onset_step")?;
-    trial.source =
-        get("source").map_or_else(|| format!("recording {}", path.display()), |m| m.1.clone());
-    if label_col.is_some() {
-        trial.step_labels = Some(labels);
-    }
-    for (k, v, _) in &meta {
-        if !KNOWN_KEYS.contains(&k.as_str()) {
-            trial.extra.insert(k.clone(), v.clone());
+
+    /// The trial: the parsed parts, the remaining metadata (id, sensor, drop and slip steps,
+    /// source, unknown keys kept in `extra`), validated.
+    fn into_trial(
+        self,
+        unit: Unit,
+        rate_hz: f32,
+        outcome: Outcome,
+        marks: PhaseMarks,
+        columns: Columns,
+        rows: Rows,
+    ) -> Result<Trial> {
+        let path = self.path;
+        let id = self.get("id").map_or_else(
+            || {
+                path.file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            },
+            |m| m.1.clone(),
+        );
+        let mut trial = Trial::new(id, unit, rate_hz, rows.samples);
+        trial.channel_names = columns.channel_names;
+        if let Some((_, v, _)) = self.get("sensor") {
+            trial.sensor = v.parse::<SensorKind>().expect("infallible");
         }
+        trial.marks = marks;
+        trial.outcome = outcome;
+        trial.drop_step = self.step("drop_step")?;
+        trial.slip_onset_step = self.step("slip_onset_step")?;
+        trial.source = self
+            .get("source")
+            .map_or_else(|| format!("recording {}", path.display()), |m| m.1.clone());
+        if columns.label.is_some() {
+            trial.step_labels = Some(rows.labels);
+        }
+        for (k, v, _) in &self.entries {
+            if !KNOWN_KEYS.contains(&k.as_str()) {
+                trial.extra.insert(k.clone(), v.clone());
+            }
+        }
+        trial.validate().map_err(|message| DataError::Shape {
+            path: path.to_path_buf(),
+            message,
+        })?;
+        Ok(trial)
     }
-    trial.validate().map_err(|message| DataError::Shape {
-        path: path.to_path_buf(),
-        message,
-    })?;
-    Ok(trial)
+}
+
+/// The header's columns: `time_s` first, then the channels, then optionally `phase` and
+/// `label` (0-based field indices).
+struct Columns {
+    /// Fields per row.
+    width: usize,
+    channel_names: Vec<String>,
+    phase: Option<usize>,
+    label: Option<usize>,
+}
+
+impl Columns {
+    /// The columns of header record `header`, their names and order checked.
+    fn read(path: &Path, header: &Record) -> Result<Self> {
+        let cols: Vec<&str> = header.fields.iter().map(String::as_str).collect();
+        if cols[0] != "time_s" {
+            return Err(DataError::MissingColumn {
+                path: path.to_path_buf(),
+                line: header.number,
+                column: "time_s (first column)".into(),
+            });
+        }
+        let mut out = Columns {
+            width: cols.len(),
+            channel_names: Vec::new(),
+            phase: None,
+            label: None,
+        };
+        for (i, &c) in cols.iter().enumerate().skip(1) {
+            out.add(c, i)
+                .map_err(|m| parse_error(path, header.number, Some(i + 1), Some(c), m))?;
+        }
+        if out.channel_names.is_empty() {
+            return Err(DataError::MissingColumn {
+                path: path.to_path_buf(),
+                line: header.number,
+                column: "at least one channel".into(),
+            });
+        }
+        Ok(out)
+    }
+
+    /// Column `i` named `c` (after `time_s`), or what is wrong with it there.
+    fn add(&mut self, c: &str, i: usize) -> std::result::Result<(), String> {
+        match c {
+            "phase" => {
+                if self.phase.is_some() || self.label.is_some() {
+                    return Err(
+                        "`phase` must come once, after the channels and before `label`".into(),
+                    );
+                }
+                self.phase = Some(i);
+            }
+            "label" => {
+                if self.label.is_some() {
+                    return Err("`label` given twice".into());
+                }
+                self.label = Some(i);
+            }
+            "" => return Err("empty column name".into()),
+            "time_s" => return Err("`time_s` must be the first column only".into()),
+            _ => {
+                if self.phase.is_some() || self.label.is_some() {
+                    return Err("channel columns must come before `phase` and `label`".into());
+                }
+                if self.channel_names.iter().any(|n| n == c) {
+                    return Err(format!("channel `{c}` given twice"));
+                }
+                self.channel_names.push(c.to_string());
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A time step longer than 1.5 periods: (previous time, its line, time, its line).
+type Gap = (f64, usize, f64, usize);
+
+/// The data rows, column by column.
+struct Rows {
+    /// Time of each row with its line.
+    times: Vec<(f64, usize)>,
+    /// Per channel, one sample per row.
+    samples: Vec<Vec<f32>>,
+    /// One per row when there is a phase column, else empty.
+    phases: Vec<Phase>,
+    /// One per row when there is a label column, else empty.
+    labels: Vec<Option<Stability>>,
+    /// The first gap (reported after the rate check, [`Rows::check_time`]).
+    gap: Option<Gap>,
+}
+
+impl Rows {
+    /// Every row after the header, each checked by [`Rows::push`].
+    fn read(
+        path: &Path,
+        body: impl Iterator<Item = Record>,
+        cols: &Columns,
+        unit: &Unit,
+        rate_hz: f32,
+    ) -> Result<Self> {
+        let mut rows = Rows {
+            times: Vec::new(),
+            samples: vec![Vec::new(); cols.channel_names.len()],
+            phases: Vec::new(),
+            labels: Vec::new(),
+            gap: None,
+        };
+        for r in body {
+            rows.push(path, r, cols, unit, rate_hz)?;
+        }
+        Ok(rows)
+    }
+
+    /// One row: its width, then its time ([`Rows::push_time`]), samples
+    /// ([`Rows::push_samples`]), phase and label ([`Rows::push_phase`], [`Rows::push_label`]).
+    fn push(
+        &mut self,
+        path: &Path,
+        r: Record,
+        cols: &Columns,
+        unit: &Unit,
+        rate_hz: f32,
+    ) -> Result<()> {
+        let (line, f) = (r.number, r.fields);
+        if f[0].starts_with('#') {
+            return Err(parse_error(
+                path,
+                line,
+                Some(1),
+                None,
+                "metadata lines (`#`) are only allowed before the header",
+            ));
+        }
+        check_width(path, line, &f, cols.width)?;
+        self.push_time(path, line, &f[0], rate_hz)?;
+        self.push_samples(path, line, &f, cols, unit)?;
+        if let Some(pc) = cols.phase {
+            self.push_phase(path, line, pc, &f[pc])?;
+        }
+        if let Some(lc) = cols.label {
+            self.push_label(path, line, lc, &f[lc])?;
+        }
+        Ok(())
+    }
+
+    /// The row's time: after the previous row's (the first gap of more than 1.5 periods
+    /// noted), within [`MAX_STEPS`] rows.
+    fn push_time(&mut self, path: &Path, line: usize, field: &str, rate_hz: f32) -> Result<()> {
+        let t = parse_number(path, line, 1, "time_s", field)?;
+        let t: f64 = field.parse().unwrap_or(t as f64);
+        if let Some(&(prev, _)) = self.times.last()
+            && t <= prev
+        {
+            return Err(parse_error(
+                path,
+                line,
+                Some(1),
+                Some("time_s"),
+                format!("time {t} is not after the previous row's {prev}"),
+            ));
+        }
+        if let Some(&(prev, prev_line)) = self.times.last()
+            && self.gap.is_none()
+            && (t - prev) * rate_hz as f64 > 1.5
+        {
+            self.gap = Some((prev, prev_line, t, line));
+        }
+        if self.times.len() == MAX_STEPS {
+            return Err(parse_error(
+                path,
+                line,
+                None,
+                None,
+                format!("more than {MAX_STEPS} data rows (the format's maximum length)"),
+            ));
+        }
+        self.times.push((t, line));
+        Ok(())
+    }
+
+    /// The row's samples, one per channel, each within the unit's physical range.
+    fn push_samples(
+        &mut self,
+        path: &Path,
+        line: usize,
+        f: &[String],
+        cols: &Columns,
+        unit: &Unit,
+    ) -> Result<()> {
+        for (c, samples_c) in self.samples.iter_mut().enumerate() {
+            let name = &cols.channel_names[c];
+            let v = parse_number(path, line, c + 2, name, &f[c + 1])?;
+            if let Some((lo, hi)) = physical_range(unit)
+                && !(lo..=hi).contains(&v)
+            {
+                return Err(parse_error(
+                    path,
+                    line,
+                    Some(c + 2),
+                    Some(name),
+                    format!("{v} {unit} is outside the sensor's physical range {lo}..={hi} {unit}"),
+                ));
+            }
+            samples_c.push(v);
+        }
+        Ok(())
+    }
+
+    /// The row's phase (column index `pc`): a phase name that does not go back.
+    fn push_phase(&mut self, path: &Path, line: usize, pc: usize, field: &str) -> Result<()> {
+        let p: Phase = field
+            .parse()
+            .map_err(|m: String| parse_error(path, line, Some(pc + 1), Some("phase"), m))?;
+        if let Some(&prev) = self.phases.last()
+            && (p as u8) < (prev as u8)
+        {
+            return Err(parse_error(
+                path,
+                line,
+                Some(pc + 1),
+                Some("phase"),
+                format!("phase goes back from {} to {}", prev.name(), p.name()),
+            ));
+        }
+        self.phases.push(p);
+        Ok(())
+    }
+
+    /// The row's label (column index `lc`): 0 (stable), 1 (unstable) or empty.
+    fn push_label(&mut self, path: &Path, line: usize, lc: usize, field: &str) -> Result<()> {
+        let v = field.trim();
+        self.labels.push(match v {
+            "" => None,
+            "0" => Some(Stability::Stable),
+            "1" => Some(Stability::Unstable),
+            _ => {
+                return Err(parse_error(
+                    path,
+                    line,
+                    Some(lc + 1),
+                    Some("label"),
+                    format!("label must be 0 (stable), 1 (unstable) or empty, not `{v}`"),
+                ));
+            }
+        });
+        Ok(())
+    }
+
+    /// The time column as a whole: at least one row, a mean step within 5 % of the stated
+    /// rate's, then no gap (`header_line`: the header's line).
+    fn check_time(
+        &self,
+        path: &Path,
+        meta: &Preamble<'_>,
+        rate_hz: f32,
+        header_line: usize,
+    ) -> Result<()> {
+        let times = &self.times;
+        let n = times.len();
+        if n == 0 {
+            return Err(parse_error(
+                path,
+                header_line + 1,
+                None,
+                None,
+                "no data rows",
+            ));
+        }
+        if n >= 2 {
+            let mean_dt = (times[n - 1].0 - times[0].0) / (n - 1) as f64;
+            let want = 1.0 / rate_hz as f64;
+            if (mean_dt - want).abs() > 0.05 * want {
+                return Err(parse_error(
+                    path,
+                    meta.line_of("rate_hz"),
+                    None,
+                    None,
+                    format!(
+                        "rate_hz {rate_hz} does not match the time column (mean step {mean_dt:.6} s = {:.3} Hz)",
+                        1.0 / mean_dt
+                    ),
+                ));
+            }
+        }
+        if let Some((prev, prev_line, t, line)) = self.gap {
+            return Err(parse_error(
+                path,
+                line,
+                Some(1),
+                Some("time_s"),
+                format!(
+                    "time jumps from {prev} s (line {prev_line}) to {t} s, about {:.0} steps at \
+                     {rate_hz} Hz: rows are missing (lost frames); the monitor fills such gaps and \
+                     lists them under `monitor_gaps`",
+                    (t - prev) * rate_hz as f64 - 1.0
+                ),
+            ));
+        }
+        Ok(())
+    }
 }

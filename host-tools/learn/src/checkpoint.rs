@@ -44,6 +44,16 @@ pub struct Checkpoint {
     pub extra: BTreeMap<String, String>,
 }
 
+impl Checkpoint {
+    /// A cross-validation fold's held-out trials (its `heldout_trials` note, as `slipguard
+    /// train --cv` writes it); `None` for a model trained on every trial.
+    pub fn heldout_trials(&self) -> Option<Vec<String>> {
+        self.extra
+            .get("heldout_trials")
+            .map(|s| s.split(',').map(str::to_string).collect())
+    }
+}
+
 /// The model settings as metadata strings.
 pub fn config_metadata(m: &FloatModel) -> BTreeMap<String, String> {
     let c = &m.config;

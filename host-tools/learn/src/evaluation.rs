@@ -410,3 +410,24 @@ pub fn row_markdown(r: &Row) -> String {
         pct(m.event_recall),
     )
 }
+
+/// The blob of a checkpoint: `blob` (the one exported beside it) when given, else the
+/// checkpoint quantized with up to 64 of the `real` sequences outside its held-out trials as
+/// calibration (what `slipguard eval` does).
+pub fn blob_or_quantized(
+    ck: &crate::checkpoint::Checkpoint,
+    blob: Option<&Vec<u8>>,
+    real: &[Sequence],
+) -> Result<Vec<u8>> {
+    if let Some(b) = blob {
+        return Ok(b.clone());
+    }
+    let h = ck.heldout_trials().unwrap_or_default();
+    let c: Vec<&[f32]> = real
+        .iter()
+        .filter(|s| !h.contains(&s.cs.trial_id))
+        .take(64)
+        .map(|s| s.cs.samples.as_slice())
+        .collect();
+    quantize_model(&ck.model, &c)
+}

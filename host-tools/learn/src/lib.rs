@@ -2,7 +2,8 @@
 //! with the blob's arithmetic ([`qat`]), float
 //! checkpoints in safetensors ([`checkpoint`]), the paper's Table I baselines
 //! ([`baselines`]), the hand-load rule every hand flag is measured against ([`load_rule`]) and
-//! the evaluation of float and quantized models ([`evaluation`]).
+//! the evaluation of float and quantized models ([`evaluation`]); the training sets built from
+//! recorded and simulated trials ([`training_data`]).
 //!
 //! Errors are [`error::LearnError`] (candle's and the data layer's wrapped).
 
@@ -17,5 +18,7 @@ pub mod product;
 pub mod qat;
 #[cfg(feature = "train")]
 pub mod train;
+#[cfg(feature = "train")]
+pub mod training_data;
 
 pub use error::{LearnError, Result};

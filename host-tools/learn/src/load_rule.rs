@@ -11,7 +11,7 @@ use slipguard_core::decision::{
     ContactConfig, ContactState, FusedHand, LoadRule, LoadRuleState, Q15,
 };
 use slipguard_core::sample::InputScale;
-use slipguard_data::armed::ArmedGrasp;
+use slipguard_data::armed::{ArmedGrasp, ArmedReport};
 use slipguard_data::labels::LabelConfig;
 use slipguard_data::trial::{Outcome, Trial};
 
@@ -279,6 +279,80 @@ pub fn pick_fused(pairs: &[(&LoadRun, &[bool])]) -> Option<FusedHand> {
 /// One line naming a fused decision (its `Display`).
 pub fn fused_name(f: &FusedHand) -> String {
     f.to_string()
+}
+
+/// The hand-load rule beside a model: held out as the model is ([`beside_model`]).
+#[derive(Debug, Clone)]
+pub struct RuleEval {
+    /// "by the model's folds (…)" or "leave one trial out".
+    pub how: String,
+    /// The picked parameters, summarised.
+    pub picks: String,
+    /// Per held-out group: its trials and the rule.
+    pub per_fold: Vec<(Vec<String>, LoadRule)>,
+    /// Held-out grasps, each scored with its fold's rule.
+    pub grasps: Vec<ArmedGrasp>,
+    /// Held-out figures.
+    pub report: ArmedReport,
+    /// Its point on the operating curve.
+    pub point: CurvePoint,
+    /// The rule's own curve: the fractions at a 0.6 s window, on all scored trials.
+    pub curve: Vec<CurvePoint>,
+}
+
+/// The rule held out as a model is: per fold on the fold's training trials (`folds`: each
+/// fold's held-out trials), else leave one trial out; with the model's input scale and
+/// contact gate (`config`).
+pub fn beside_model(
+    trials: &[Trial],
+    config: &slipguard_core::blob::ModelConfig,
+    folds: Option<&[Vec<String>]>,
+) -> Result<RuleEval, ArmedError> {
+    let refs: Vec<&Trial> = trials.iter().collect();
+    let scale = InputScale::of(config);
+    let contact = ContactConfig::of(config);
+    let runs = load_runs(&refs, &scale, &contact, &LabelConfig::default())?;
+    let (h, how) = if let Some(folds) = folds {
+        (
+            held_out_by_folds(&runs, folds),
+            format!(
+                "on each of the model's {} folds' training trials",
+                folds.len()
+            ),
+        )
+    } else {
+        (
+            held_out_loto(&runs),
+            "leave one trial out (each trial with the rule picked on the others)".to_string(),
+        )
+    };
+    let report = ArmedReport::of(&h.grasps);
+    let first = h.picks.first().map(|(_, r)| *r);
+    let point = CurvePoint::of(
+        first.map_or(0.0, |r| fraction(&r)),
+        first.map_or(0, |r| r.window),
+        &h.grasps,
+    );
+    let curve = FRACTIONS
+        .iter()
+        .map(|&f| {
+            let grasps: Vec<ArmedGrasp> = runs
+                .iter()
+                .map(|r| r.grasp(&rule(f, 0.6, r.step_ms)))
+                .collect();
+            let w = runs.first().map_or(0, |r| rule(f, 0.6, r.step_ms).window);
+            CurvePoint::of(f, w, &grasps)
+        })
+        .collect();
+    Ok(RuleEval {
+        how,
+        picks: picks_summary(&h),
+        per_fold: h.picks,
+        grasps: h.grasps,
+        report,
+        point,
+        curve,
+    })
 }
 
 #[cfg(test)]

@@ -614,6 +614,23 @@ pub fn bootstrap_paper(
     })
 }
 
+/// The sequences the paper's metrics are computed on, from recorded 16.7 Hz force trials, as
+/// the firmware's model state sees them: labelled with the paper's durations, from each
+/// channel's contact onset by the 16.7 Hz force models' rule.
+pub fn sequences_from_contact(trials: &[Trial]) -> Vec<crate::evaluation::Sequence> {
+    let rule = OnsetRule::of(&crate::evaluation::force_config(
+        slipguard_core::blob::Variant::Lstm,
+        false,
+        1,
+        "",
+        slipguard_core::sample::PAPER_RATE_MHZ,
+    ));
+    cut_to_contact(
+        crate::evaluation::sequences_of(trials, &LabelConfig::default()),
+        &rule,
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -105,6 +105,28 @@ pub fn profile_id() -> impl clap::builder::TypedValueParser<Value = ProfileId> {
         .try_map(|s: String| s.parse::<ProfileId>())
 }
 
+/// The word `--sensor` (train, simulate) uses for a profile's sensor: the hand's `force` pads,
+/// the `suction` cups. A new profile adds its word here (the `match` is exhaustive).
+pub fn sensor_word(p: ProfileId) -> &'static str {
+    match p {
+        ProfileId::Hand => "force",
+        ProfileId::Suction => "suction",
+    }
+}
+
+/// clap parser of `--sensor`: a profile's sensor word ([`sensor_word`]; the help lists them).
+pub fn sensor() -> impl clap::builder::TypedValueParser<Value = ProfileId> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(ProfileId::ALL.map(sensor_word)).try_map(
+        |s: String| {
+            ProfileId::ALL
+                .into_iter()
+                .find(|p| sensor_word(*p) == s)
+                .ok_or("unknown sensor")
+        },
+    )
+}
+
 /// A frame rate in Hz that one of the sensor profiles runs (`--rate-hz`, `--rate`).
 pub fn profile_rate(flag: &str, rate_hz: f64, profiles: &[Profile]) -> anyhow::Result<Millihertz> {
     let mhz = (rate_hz * 1000.0).round();

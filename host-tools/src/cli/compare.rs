@@ -11,8 +11,8 @@ use slipguard_data::armed::{ArmedGrasp, ArmedMetrics};
 use slipguard_data::labels::LabelConfig;
 use slipguard_learn::product;
 
-use super::eval::{self, Group};
 use super::load_real_trials;
+use slipguard::model_groups::{Group, resolve};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -109,21 +109,21 @@ fn seed_run(
     let folds: Vec<Vec<String>> = g
         .members
         .iter()
-        .filter_map(|(ck, _)| eval::heldout(ck))
+        .filter_map(|(ck, _)| ck.heldout_trials())
         .collect();
-    let rule = eval::rule_eval(trials, config, Some(&folds))?;
+    let rule = slipguard_learn::load_rule::beside_model(trials, config, Some(&folds))?;
     let mut model = Vec::new();
     let mut fused = Vec::new();
     let (mut tuned, mut tuned_picks) = (Vec::new(), Vec::new());
     for (ck, blob) in &g.members {
-        let h = eval::heldout(ck).ok_or_else(|| {
+        let h = ck.heldout_trials().ok_or_else(|| {
             anyhow::anyhow!(
                 "{}: a checkpoint without held-out trials; compare takes cross-validation folders \
                  (slipguard train --cv K)",
                 g.name
             )
         })?;
-        let bytes = eval::member_blob(ck, blob.as_ref(), real)?;
+        let bytes = slipguard_learn::evaluation::blob_or_quantized(ck, blob.as_ref(), real)?;
         let aligned = slipguard_core::blob::AlignedBlob::new(&bytes);
         let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
             .map_err(|e| anyhow::anyhow!("{}: the model blob does not parse: {e}", g.name))?;
@@ -233,7 +233,7 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         !a.runs.is_empty(),
         "no runs: pass CV folders (one per training seed) or --seeds 1,2,3 --out DIR -- <train options>"
     );
-    let mut groups = eval::resolve(&a.runs, false)?;
+    let mut groups = resolve(&a.runs, false, &mut |w| eprintln!("{w}"))?;
     if groups.len() == a.runs.len() {
         // One group per folder: named by its path, which tells the seeds apart.
         for (g, p) in groups.iter_mut().zip(&a.runs) {
@@ -247,7 +247,7 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         eprintln!("compare: skipped {e}");
     }
     let trials: Vec<Trial> = keep.into_iter().cloned().collect();
-    let real = eval::real_sequences(&trials);
+    let real = product::sequences_from_contact(&trials);
     let mut seeds = Vec::new();
     for g in &groups {
         seeds.push(seed_run(g, &trials, &real, a.guard)?);

@@ -288,7 +288,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let labelled = sequences_of(&trials, &LabelConfig::default());
     let counts = count_real(&trials, &rule, &labelled);
     let real = cut_to_contact(labelled, &rule);
-    let armed = super::eval::armed_rows_for_blob("hand-force", &hand.bytes, &trials, true)?;
+    let armed = slipguard::armed_table::rows_for_blob("hand-force", &hand.bytes, &trials, true)?;
 
     let rate40 = hand40_cfg.sample_rate_mhz.hz_f32();
     let runs = [
@@ -383,11 +383,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "   The {} grasps have {} contact channels: the `channel` row scores each one's own flag.\n",
         counts.grasps, counts.channels
     );
-    println!("{}", super::eval::ARMED_HEADER);
+    println!("{}", slipguard::armed_table::ARMED_HEADER);
     println!("{armed}");
     // `armed` already holds the hand-load rule's rows beside the model's (the baseline every
-    // learned flag is read against, `eval::armed_rows_for_blob`), on the same trials.
-    println!("{}", super::eval::ARMED_NOTE);
+    // learned flag is read against, `slipguard::armed_table::rows_for_blob`), on the same trials.
+    println!("{}", slipguard::armed_table::ARMED_NOTE);
     println!(
         "\n   Reading it: good is every failure detected ({f}/{f} at hand level) with a long lead \
          (more time to tighten the grip), and no false-alarm grasp (0/{s}). A detector that always \

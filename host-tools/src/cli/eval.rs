@@ -3,12 +3,16 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use slipguard::armed_table::{
+    ARMED_HEADER, ARMED_NOTE, Product, RULE_NOTE, armed_row, fused_note, hand_level,
+};
+use slipguard::model_groups::{Group, resolve};
 use slipguard::plot::plot_prediction;
-use slipguard_app::profile::ProfileQuery;
+use slipguard_app::profile::ProfileId;
 use slipguard_core::blob::InputUnit;
 use slipguard_core::decision::{DecisionConfig, Q15};
 use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
-use slipguard_learn::checkpoint::{self, Checkpoint};
+use slipguard_learn::checkpoint::Checkpoint;
 use slipguard_learn::evaluation::{
     Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, probabilities, quantize_model,
     row_markdown, sim_force_sequences, sim_suction_sequences,
@@ -74,143 +78,6 @@ pub struct Args {
     /// of stopping.
     #[arg(long)]
     pub allow_bad_model: bool,
-}
-
-/// A model to evaluate: one checkpoint, or the folds of a cross-validation.
-pub struct Group {
-    pub name: String,
-    pub members: Vec<(Checkpoint, Option<Vec<u8>>)>,
-}
-
-fn load_member(p: &Path, allow_bad: bool) -> anyhow::Result<(Checkpoint, Option<Vec<u8>>)> {
-    let ck_path = p.with_extension("safetensors");
-    if p.extension().is_some_and(|e| e == "bin") && !ck_path.exists() {
-        anyhow::bail!(
-            "{}: a blob alone cannot be evaluated here (eval compares the float model with its              quantized blob and needs {} beside it); run the blob through the firmware path              with `slipguard replay --model {}` instead",
-            p.display(),
-            ck_path.display(),
-            p.display()
-        );
-    }
-    let mut ck = checkpoint::read(&ck_path)?;
-    let bin = ck_path.with_extension("bin");
-    let blob = if bin.exists() {
-        let b = std::fs::read(&bin).with_context(|| format!("reading {}", bin.display()))?;
-        let c = &ck.model.config;
-        let profile = slipguard_app::profile::Profile::lookup(ProfileQuery::unit_rate(
-            c.input_unit,
-            c.sample_rate_mhz,
-        ))
-        .with_context(|| format!("{}", ck_path.display()))?;
-        match slipguard::replay::check_blob(
-            &profile,
-            slipguard_core::blob::AlignedBlob::new(&b).as_bytes(),
-        ) {
-            Ok(c) => {
-                // The blob's hand rule (format v2, set at export): kept when the checkpoint is
-                // quantized afresh with another decision rule (`--threshold` …).
-                ck.model.config.hand_rule = c.hand_rule;
-                Some(b)
-            }
-            Err(why) if allow_bad => {
-                eprintln!(
-                    "eval: warning: {}: {why}; evaluating the checkpoint quantized afresh \
-                     instead (--allow-bad-model)",
-                    bin.display()
-                );
-                None
-            }
-            Err(why) => anyhow::bail!(
-                "{}: {why} (remove or re-export it, or --allow-bad-model to quantize the \
-                 checkpoint afresh instead)",
-                bin.display()
-            ),
-        }
-    } else {
-        None
-    };
-    Ok((ck, blob))
-}
-
-fn is_ck(p: &Path) -> bool {
-    p.extension().is_some_and(|e| e == "safetensors")
-}
-
-fn fold_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("reading {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            is_ck(p)
-                && p.file_name()
-                    .and_then(|n| n.to_str())
-                    .is_some_and(|n| n.starts_with("fold"))
-        })
-        .collect();
-    v.sort();
-    Ok(v)
-}
-
-/// Resolves the command-line paths into model groups.
-pub fn resolve(paths: &[PathBuf], allow_bad: bool) -> anyhow::Result<Vec<Group>> {
-    let mut out = Vec::new();
-    let stem = |p: &Path| {
-        p.file_stem()
-            .map_or("model".into(), |s| s.to_string_lossy().to_string())
-    };
-    for p in paths {
-        anyhow::ensure!(p.exists(), "{} not found", p.display());
-        if p.is_file() {
-            out.push(Group {
-                name: stem(p),
-                members: vec![load_member(p, allow_bad)?],
-            });
-            continue;
-        }
-        let folds = fold_files(p)?;
-        if !folds.is_empty() {
-            out.push(Group {
-                name: format!("{} (CV)", stem(p)),
-                members: folds
-                    .iter()
-                    .map(|f| load_member(f, allow_bad))
-                    .collect::<anyhow::Result<_>>()?,
-            });
-            continue;
-        }
-        let mut entries: Vec<PathBuf> = std::fs::read_dir(p)?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .collect();
-        entries.sort();
-        for e in entries {
-            if e.is_file() && is_ck(&e) {
-                out.push(Group {
-                    name: stem(&e),
-                    members: vec![load_member(&e, allow_bad)?],
-                });
-            } else if e.is_dir() {
-                let folds = fold_files(&e)?;
-                if !folds.is_empty() {
-                    out.push(Group {
-                        name: format!("{} (CV)", stem(&e)),
-                        members: folds
-                            .iter()
-                            .map(|f| load_member(f, allow_bad))
-                            .collect::<anyhow::Result<_>>()?,
-                    });
-                }
-            }
-        }
-    }
-    anyhow::ensure!(!out.is_empty(), "no checkpoints found");
-    Ok(out)
-}
-
-/// A fold checkpoint's held-out trials.
-pub fn heldout(ck: &Checkpoint) -> Option<Vec<String>> {
-    ck.extra
-        .get("heldout_trials")
-        .map(|s| s.split(',').map(str::to_string).collect())
 }
 
 /// Evaluates one model on `data` (`select(member, seq)` picks each member's test sequences),
@@ -299,7 +166,7 @@ pub fn heldout_lines(g: &Group) -> Vec<String> {
     g.members
         .iter()
         .filter_map(|(ck, _)| {
-            let h = heldout(ck)?;
+            let h = ck.heldout_trials()?;
             Some(format!(
                 "{} {}: {}",
                 g.name,
@@ -311,7 +178,7 @@ pub fn heldout_lines(g: &Group) -> Vec<String> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let mut groups = resolve(&a.models, a.allow_bad_model)?;
+    let mut groups = resolve(&a.models, a.allow_bad_model, &mut |w| eprintln!("{w}"))?;
     for g in &mut groups {
         for (ck, blob) in &mut g.members {
             let c = &mut ck.model.config;
@@ -342,17 +209,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .first()
         .map(|t| {
             let profile = slipguard::replay::profile_for(t, &t.id)?;
-            anyhow::Ok((t.rate_mhz(), profile.unit))
+            anyhow::Ok((t.rate_mhz(), profile.unit, profile.id))
         })
         .transpose()?;
     let fits_data = |g: &Group| {
-        data_key.is_some_and(|(r, u)| {
+        data_key.is_some_and(|(r, u, _)| {
             g.members
                 .iter()
                 .all(|(c, _)| c.model.config.sample_rate_mhz == r && c.model.config.input_unit == u)
         })
     };
-    if let (Some(d), Some((r, u))) = (&a.data, data_key)
+    if let (Some(d), Some((r, u, _))) = (&a.data, data_key)
         && let Some(g) = groups.iter().find(|g| !fits_data(g))
     {
         let c = &g.members[0].0.model.config;
@@ -375,16 +242,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "",
         PAPER_RATE_MHZ,
     ));
-    let data_rule = match data_key {
-        Some((_, InputUnit::Counts)) => {
-            OnsetRule::of(&slipguard_learn::evaluation::suction_config(
-                slipguard_core::blob::Variant::Lstm,
-                false,
-                1,
-                "",
-            ))
-        }
-        _ => OnsetRule::of(&slipguard_learn::evaluation::force_config(
+    let data_rule = match data_key.map(|k| k.2) {
+        Some(ProfileId::Suction) => OnsetRule::of(&slipguard_learn::evaluation::suction_config(
+            slipguard_core::blob::Variant::Lstm,
+            false,
+            1,
+            "",
+        )),
+        Some(ProfileId::Hand) | None => OnsetRule::of(&slipguard_learn::evaluation::force_config(
             slipguard_core::blob::Variant::Lstm,
             false,
             1,
@@ -440,10 +305,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     for g in &groups {
         let unit = g.members[0].0.model.config.input_unit;
         if !real.is_empty() && fits_data(g) {
-            let cv = g.members.iter().all(|(c, _)| heldout(c).is_some());
+            let cv = g.members.iter().all(|(c, _)| c.heldout_trials().is_some());
             let name = if cv { "real held-out" } else { "real (all)" };
             let calib = |ck: &Checkpoint| -> Vec<Vec<f32>> {
-                let h = heldout(ck).unwrap_or_default();
+                let h = ck.heldout_trials().unwrap_or_default();
                 real.iter()
                     .filter(|s| !h.contains(&s.cs.trial_id))
                     .take(64)
@@ -454,7 +319,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 g,
                 name,
                 &real,
-                |ck, s| heldout(ck).is_none_or(|h| h.contains(&s.cs.trial_id)),
+                |ck, s| {
+                    ck.heldout_trials()
+                        .is_none_or(|h| h.contains(&s.cs.trial_id))
+                },
                 calib,
                 plots,
                 &kinds,
@@ -470,7 +338,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     members: vec![g.members[0].clone()],
                 };
                 let calib = |ck: &Checkpoint| -> Vec<Vec<f32>> {
-                    let h = heldout(ck).unwrap_or_default();
+                    let h = ck.heldout_trials().unwrap_or_default();
                     real.iter()
                         .filter(|s| !h.contains(&s.cs.trial_id))
                         .take(64)
@@ -621,102 +489,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The contact onset rule of 16.7 Hz force models.
-fn force_onset_rule() -> OnsetRule {
-    OnsetRule::of(&slipguard_learn::evaluation::force_config(
-        slipguard_core::blob::Variant::Lstm,
-        false,
-        1,
-        "",
-        PAPER_RATE_MHZ,
-    ))
-}
-
-/// The paper's metrics' sequences of real trials as the firmware's model state sees them: from
-/// each channel's contact onset (the 16.7 Hz force rule).
-pub fn real_sequences(trials: &[Trial]) -> Vec<Sequence> {
-    product::cut_to_contact(
-        sequences_of(trials, &LabelConfig::default()),
-        &force_onset_rule(),
-    )
-}
-
-/// The blob of a member: its own, or the checkpoint quantized with up to 64 real sequences
-/// outside its held-out trials as calibration (what `eval` does).
-pub fn member_blob(
-    ck: &Checkpoint,
-    blob: Option<&Vec<u8>>,
-    real: &[Sequence],
-) -> anyhow::Result<Vec<u8>> {
-    if let Some(b) = blob {
-        return Ok(b.clone());
-    }
-    let h = heldout(ck).unwrap_or_default();
-    let c: Vec<&[f32]> = real
-        .iter()
-        .filter(|s| !h.contains(&s.cs.trial_id))
-        .take(64)
-        .map(|s| s.cs.samples.as_slice())
-        .collect();
-    Ok(quantize_model(&ck.model, &c)?)
-}
-
-/// A model's figures on the real trials as the product is used: the quantized model, hand
-/// level and per channel, in the armed window, with bootstrap intervals; the paper's two
-/// metrics with theirs; and the operating curve.
-pub struct Product {
-    pub name: String,
-    pub in_sample: bool,
-    pub hand: ArmedReport,
-    pub channel: ArmedReport,
-    pub curve: Vec<CurvePoint>,
-    pub shipped: Option<CurvePoint>,
-    pub paper_success_ci: Option<slipguard_data::armed::Interval>,
-    pub paper_ahead_ci: Option<slipguard_data::armed::Interval>,
-    /// The hand-load rule on the same trials, its parameters picked on training trials only.
-    pub rule: Option<RuleEval>,
-    /// The blob's own hand rule (format v2): the hand row is then the fused hand flag, as the
-    /// firmware computes it.
-    pub hand_rule: Option<slipguard_core::decision::FusedHand>,
-}
-
-/// The level label of a product's hand row: "hand", or "hand (fused)" for a blob with a rule.
-fn hand_level(p: &Product) -> &'static str {
-    if p.hand_rule.is_some() {
-        "hand (fused)"
-    } else {
-        "hand"
-    }
-}
-
-/// What a fused hand row means.
-fn fused_note(name: &str, f: &slipguard_core::decision::FusedHand) -> String {
-    format!(
-        "{name}: hand (fused) = the hand flag as the firmware computes it from this blob, its \
-         hand decision fused with the blob's hand rule (format v2): {f}. The rule's parameters \
-         are the blob's (set at export; eval picks nothing): chosen on these trials, they make \
-         this row in-sample for them."
-    )
-}
-
-/// The hand-load rule beside a model: held out as the model is.
-pub struct RuleEval {
-    /// "by the model's folds (…)" or "leave one trial out".
-    pub how: String,
-    /// The picked parameters, summarised.
-    pub picks: String,
-    /// Per held-out group: its trials and the rule.
-    pub per_fold: Vec<(Vec<String>, slipguard_core::decision::LoadRule)>,
-    /// Held-out grasps, each scored with its fold's rule.
-    pub grasps: Vec<ArmedGrasp>,
-    /// Held-out figures.
-    pub report: ArmedReport,
-    /// Its point on the operating curve.
-    pub point: CurvePoint,
-    /// The rule's own curve: the fractions at a 0.6 s window, on all scored trials.
-    pub curve: Vec<CurvePoint>,
-}
-
 /// The trial an armed-window error names.
 fn skipped_trial(e: &product::ArmedError) -> String {
     match e {
@@ -725,63 +497,6 @@ fn skipped_trial(e: &product::ArmedError) -> String {
         | product::ArmedError::UnknownOutcome { trial } => trial.clone(),
         _ => String::new(),
     }
-}
-
-/// The rule held out as a model is: per fold on the fold's training trials (`folds`: each
-/// fold's held-out trials), else leave one trial out; the model's input scale and contact gate.
-pub fn rule_eval(
-    trials: &[Trial],
-    config: &slipguard_core::blob::ModelConfig,
-    folds: Option<&[Vec<String>]>,
-) -> anyhow::Result<RuleEval> {
-    use slipguard_learn::load_rule;
-    let refs: Vec<&Trial> = trials.iter().collect();
-    let scale = slipguard_core::sample::InputScale::of(config);
-    let contact = slipguard_core::decision::ContactConfig::of(config);
-    let runs = load_rule::load_runs(&refs, &scale, &contact, &LabelConfig::default())?;
-    let (h, how) = if let Some(folds) = folds {
-        (
-            load_rule::held_out_by_folds(&runs, folds),
-            format!(
-                "on each of the model's {} folds' training trials",
-                folds.len()
-            ),
-        )
-    } else {
-        (
-            load_rule::held_out_loto(&runs),
-            "leave one trial out (each trial with the rule picked on the others)".to_string(),
-        )
-    };
-    let report = ArmedReport::of(&h.grasps);
-    let first = h.picks.first().map(|(_, r)| *r);
-    let point = CurvePoint::of(
-        first.map_or(0.0, |r| load_rule::fraction(&r)),
-        first.map_or(0, |r| r.window),
-        &h.grasps,
-    );
-    let curve = load_rule::FRACTIONS
-        .iter()
-        .map(|&f| {
-            let grasps: Vec<ArmedGrasp> = runs
-                .iter()
-                .map(|r| r.grasp(&load_rule::rule(f, 0.6, r.step_ms)))
-                .collect();
-            let w = runs
-                .first()
-                .map_or(0, |r| load_rule::rule(f, 0.6, r.step_ms).window);
-            CurvePoint::of(f, w, &grasps)
-        })
-        .collect();
-    Ok(RuleEval {
-        how,
-        picks: load_rule::picks_summary(&h),
-        per_fold: h.picks,
-        grasps: h.grasps,
-        report,
-        point,
-        curve,
-    })
 }
 
 fn product_eval(
@@ -799,7 +514,7 @@ fn product_eval(
         Vec::new();
     let (mut seqs, mut preds) = (Vec::new(), Vec::new());
     for (ck, blob) in &g.members {
-        let h = heldout(ck);
+        let h = ck.heldout_trials();
         let test: Vec<&Trial> = trials
             .iter()
             .filter(|t| h.as_ref().is_none_or(|h| h.contains(&t.id)))
@@ -853,9 +568,12 @@ fn product_eval(
     }
     let rule = match g.members.first() {
         Some((ck, _)) => {
-            let folds: Vec<Vec<String>> =
-                g.members.iter().filter_map(|(ck, _)| heldout(ck)).collect();
-            Some(rule_eval(
+            let folds: Vec<Vec<String>> = g
+                .members
+                .iter()
+                .filter_map(|(ck, _)| ck.heldout_trials())
+                .collect();
+            Some(slipguard_learn::load_rule::beside_model(
                 trials,
                 &ck.model.config,
                 cv.then_some(folds.as_slice()),
@@ -881,73 +599,6 @@ fn product_eval(
         rule,
         hand_rule,
     })
-}
-
-/// Header of the armed-window table.
-pub const ARMED_HEADER: &str = "| model | data | level | grasps (fail) | detected | lead median | false-alarm grasps | false alarms / armed min |\n|---|---|---|---|---|---|---|---|";
-
-/// What the load-rule row means.
-pub const RULE_NOTE: &str = " load rule = the baseline that learns nothing \
-(`slipguard_core::decision::LoadRule`): the hand flag is up while the summed load of the channels \
-in contact is below a fraction of its peak over the last frames; fraction (0.20–0.80) and window \
-(0.3–1.2 s) picked on training trials only, by the models' decision criterion, and scored on the \
-same held-out trials as the model beside it.";
-
-/// What the armed-window columns mean.
-pub const ARMED_NOTE: &str = "\nArmed window: from the lift start to the release start (successes, found from the force: \
-docs/labels.md) or to the drop (failures); nothing before the lift or after the release counts. \
-detected = failures with a flag up in their armed window (so before the drop), with the 95 % \
-bootstrap interval over trials; lead = drop − first flag; false-alarm grasps = successes with any \
-flag in their armed window; false alarms per minute of the successes' armed time. hand = the \
-hand flag (the firmware's decision over the channels in contact), channel = each contact channel's \
-own flag scored as a grasp.";
-
-fn armed_row(p: &Product) -> String {
-    let data = if p.in_sample {
-        "real (all, in-sample)"
-    } else {
-        "real held-out"
-    };
-    let mut rows = format!(
-        "{}\n{}",
-        armed_line(&p.name, data, hand_level(p), &p.hand),
-        armed_line(&p.name, data, "channel", &p.channel)
-    );
-    if let Some(r) = &p.rule {
-        rows.push('\n');
-        rows.push_str(&armed_line(
-            &format!("load rule beside {}", p.name),
-            "real held-out",
-            "hand",
-            &r.report,
-        ));
-    }
-    rows
-}
-
-/// One row of the armed-window table.
-fn armed_line(name: &str, data: &str, level: &str, r: &ArmedReport) -> String {
-    let m = &r.metrics;
-    let ci = |i: Option<slipguard_data::armed::Interval>| {
-        i.map_or(String::new(), |i| {
-            format!(" [{:.0}–{:.0} %]", 100.0 * i.lo, 100.0 * i.hi)
-        })
-    };
-    format!(
-        "| {name} | {data} | {level} | {} ({}) | {}/{}{} (≥ 300 ms ahead: {}) | {} | {}/{}{} | {:.2} |",
-        m.grasps,
-        m.failures,
-        m.detected,
-        m.failures,
-        ci(r.detected_rate_ci),
-        m.detected_with_lead(300.0),
-        m.lead_median_ms()
-            .map_or("-".into(), |l| format!("{l:.0} ms")),
-        m.false_alarm_grasps,
-        m.successes,
-        ci(r.false_alarm_grasp_rate_ci),
-        m.false_alarms_per_min().unwrap_or(0.0)
-    )
 }
 
 fn product_json(p: &Product, paper: Option<&Row>) -> serde_json::Value {
@@ -1046,48 +697,10 @@ fn product_json(p: &Product, paper: Option<&Row>) -> serde_json::Value {
     serde_json::Value::Object(o)
 }
 
-/// The armed-window rows (hand and channel level) of one blob on `trials`, for the demo.
-pub fn armed_rows_for_blob(
-    name: &str,
-    bytes: &[u8],
-    trials: &[Trial],
-    in_sample: bool,
-) -> anyhow::Result<String> {
-    let cfg = LabelConfig::default();
-    let aligned = slipguard_core::blob::AlignedBlob::new(bytes);
-    let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
-        .map_err(|e| anyhow::anyhow!("{name}: the model blob does not parse: {e}"))?;
-    let refs: Vec<&Trial> = trials.iter().collect();
-    let (refs, _skipped) = product::scoreable(&refs, &cfg)?;
-    let kept: Vec<Trial> = refs.iter().map(|&t| t.clone()).collect();
-    let (mut hand, mut channel) = (Vec::new(), Vec::new());
-    let hand_rule = m.config().hand_rule;
-    for w in product::windowed_runs(&m, &refs, &cfg)? {
-        if let Some(t) = trials.iter().find(|t| t.id == w.trial)
-            && let Some(sc) = product::score(t, &w.run, &cfg)?
-        {
-            hand.push(sc.hand);
-            channel.extend(sc.channels);
-        }
-    }
-    let p = Product {
-        name: name.to_string(),
-        in_sample,
-        hand: ArmedReport::of(&hand),
-        channel: ArmedReport::of(&channel),
-        curve: Vec::new(),
-        shipped: None,
-        paper_success_ci: None,
-        paper_ahead_ci: None,
-        rule: Some(rule_eval(&kept, m.config(), None)?),
-        hand_rule,
-    };
-    Ok(armed_row(&p))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use slipguard_learn::load_rule::RuleEval;
 
     fn grasp(trial: &str, failure: bool, up: &[usize]) -> ArmedGrasp {
         let mut flags = vec![false; 30];

@@ -1,5 +1,6 @@
 //! `slipguard train`: the paper's four variants with candle; cross-validation by trial,
 //! simulated pre-training and mixing, float checkpoints and quantized blobs.
+use slipguard_app::profile::{Profile, ProfileId, ProfileQuery};
 use slipguard_core::units::Millihertz;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -15,25 +16,15 @@ use slipguard_data::labels::{ChannelSequence, LabelConfig};
 use slipguard_learn::checkpoint::{self, Checkpoint};
 use slipguard_learn::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
-    sequences_of, set_decision, sim_force_sequences, sim_suction_sequences, tune_decision,
-    with_quantized_model,
+    set_decision, tune_decision, with_quantized_model,
 };
 use slipguard_learn::product::{self, OnsetRule};
 use slipguard_learn::qat::{QatConfig, blob_agreement, qat_finetune};
 use slipguard_learn::train::{EpochLog, Progress, TrainConfig, init_model, split_by_trial, train};
+use slipguard_learn::training_data::{self, SimRecipe, TrainingSets};
 
 use super::progress::bar;
 use super::{check, load_real_trials};
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
-pub enum Sensor {
-    /// Fingertip force (mN), 16.7 or 40 Hz: recordings or the real eagle-shoal trials
-    /// (+ simulated force).
-    #[default]
-    Force,
-    /// Suction-cup pressure (1/16 ADC counts), 71 Hz: recordings (+ simulated suction).
-    Suction,
-}
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -43,13 +34,15 @@ pub struct Args {
     /// Output folder (checkpoints, blobs, logs).
     #[arg(long)]
     pub out: PathBuf,
-    /// Sensor: force or suction (default: the data's unit, mN = force, counts = suction; a value
-    /// that differs from the data's is refused).
-    #[arg(long = "sensor", value_enum)]
-    pub sensor_arg: Option<Sensor>,
-    /// The sensor trained for (--sensor, else the data's).
-    #[arg(skip)]
-    pub sensor: Sensor,
+    /// Sensor: force (the hand profile: fingertip force in mN, 16.7 or 40 Hz; recordings or the
+    /// real eagle-shoal trials, + simulated force) or suction (the suction profile: cup pressure
+    /// in 1/16 ADC counts, 71 Hz; recordings + simulated suction). Default: the profile of the
+    /// data's unit; a value that differs from the data's is refused.
+    #[arg(long = "sensor", value_parser = check::sensor())]
+    pub sensor_arg: Option<ProfileId>,
+    /// The profile trained for (--sensor, else the data's).
+    #[arg(skip = ProfileId::Hand)]
+    pub sensor: ProfileId,
     /// Variants, comma separated: lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm, or all.
     #[arg(long, default_value = "all")]
     pub variant: String,
@@ -234,10 +227,6 @@ fn class_weights(s: &str) -> anyhow::Result<[f32; 2]> {
     Ok([v[0], v[1]])
 }
 
-fn refs(v: &[Sequence]) -> Vec<&ChannelSequence> {
-    v.iter().map(|s| &s.cs).collect()
-}
-
 /// What [`Run::qat`] returns.
 struct QatRun {
     model: FloatModel,
@@ -251,9 +240,7 @@ struct QatRun {
 
 /// What every fold's training draws on.
 struct FoldData<'d> {
-    real: &'d [Sequence],
-    sim_mix: &'d [Sequence],
-    cl_mix: &'d [Sequence],
+    sets: &'d TrainingSets,
     /// The pre-trained model all folds start from, if any.
     pre: Option<&'d FloatModel>,
     config: slipguard_core::blob::ModelConfig,
@@ -340,16 +327,7 @@ impl Run<'_> {
         calib: &[&[f32]],
         agreement: Vec<Vec<f32>>,
     ) -> anyhow::Result<QatRun> {
-        let bits = if self.a.qat_cell_max > 0.0 {
-            let c = slipguard_core::quantize::cell_bits_for(
-                self.a.qat_cell_max as f32 * slipguard_core::quantize::CELL_HEADROOM,
-            );
-            vec![c; model.lstms.len()]
-        } else {
-            slipguard_core::quantize::quantize(model, calib, None)?
-                .1
-                .cell_frac_bits
-        };
+        let bits = self.qat_cell_bits(model, calib)?;
         let qc = QatConfig {
             epochs: self.a.qat_epochs,
             lr: self.a.qat_lr,
@@ -362,26 +340,7 @@ impl Run<'_> {
         let seqs: Vec<&[f32]> = val.iter().map(|s| s.samples.as_slice()).collect();
         let before = blob_agreement(model, calib, &seqs)?;
         let what = format!("{what} QAT");
-        let pb = bar(qc.epochs as u64, &what);
-        pb.enable_steady_tick(std::time::Duration::from_millis(500));
-        let out = qat_finetune(model, tr, val, &self.tc, &qc, |p| match p {
-            Progress::Batch {
-                epoch,
-                batch,
-                batches,
-                train_loss,
-            } => pb.set_message(format!(
-                "{what} epoch {epoch} batch {batch}/{batches} train loss {train_loss:.4}"
-            )),
-            Progress::Epoch(l) => {
-                pb.set_position(l.epoch as u64);
-                pb.set_message(format!(
-                    "{what} (epoch {}: val loss {:.4}, {:.1} s)",
-                    l.epoch, l.val_loss, l.seconds
-                ));
-            }
-        })?;
-        pb.finish_and_clear();
+        let out = self.qat_fit(&what, model, tr, val, &qc)?;
         let dps = out.agreement.clone();
         let out = out.trained;
         let after = blob_agreement(&out.model, calib, &seqs)?;
@@ -418,6 +377,53 @@ impl Run<'_> {
         })
     }
 
+    /// The cell format QAT fine-tunes in: the one covering 1.25× --qat-cell-max, else the
+    /// one the quantizer calibrates from `calib`.
+    fn qat_cell_bits(&self, model: &FloatModel, calib: &[&[f32]]) -> anyhow::Result<Vec<u8>> {
+        Ok(if self.a.qat_cell_max > 0.0 {
+            let c = slipguard_core::quantize::cell_bits_for(
+                self.a.qat_cell_max as f32 * slipguard_core::quantize::CELL_HEADROOM,
+            );
+            vec![c; model.lstms.len()]
+        } else {
+            slipguard_core::quantize::quantize(model, calib, None)?
+                .1
+                .cell_frac_bits
+        })
+    }
+
+    /// `qat_finetune` with a progress bar.
+    fn qat_fit(
+        &self,
+        what: &str,
+        model: &FloatModel,
+        tr: &[&ChannelSequence],
+        val: &[&ChannelSequence],
+        qc: &QatConfig,
+    ) -> anyhow::Result<slipguard_learn::qat::QatOutcome> {
+        let pb = bar(qc.epochs as u64, what);
+        pb.enable_steady_tick(std::time::Duration::from_millis(500));
+        let out = qat_finetune(model, tr, val, &self.tc, qc, |p| match p {
+            Progress::Batch {
+                epoch,
+                batch,
+                batches,
+                train_loss,
+            } => pb.set_message(format!(
+                "{what} epoch {epoch} batch {batch}/{batches} train loss {train_loss:.4}"
+            )),
+            Progress::Epoch(l) => {
+                pb.set_position(l.epoch as u64);
+                pb.set_message(format!(
+                    "{what} (epoch {}: val loss {:.4}, {:.1} s)",
+                    l.epoch, l.val_loss, l.seconds
+                ));
+            }
+        })?;
+        pb.finish_and_clear();
+        Ok(out)
+    }
+
     /// Trains one model on `train_real` (split by trial with `split_seed` for early stopping)
     /// plus the simulated mixes, from the pre-trained model, then QAT if asked for; the QAT
     /// agreement recordings leave out the trials in `excluded`.
@@ -431,17 +437,8 @@ impl Run<'_> {
     ) -> anyhow::Result<FoldFit<'d>> {
         let a = self.a;
         let mut timing = Vec::new();
-        let tr_refs: Vec<&ChannelSequence> = train_real.iter().map(|s| &s.cs).collect();
-        let (mut tr, val) = split_by_trial(&tr_refs, a.val_share, split_seed);
-        let (mut tr_mix, val_mix) = if d.real.is_empty() {
-            split_by_trial(&refs(d.sim_mix), a.val_share, a.seed)
-        } else {
-            (refs(d.sim_mix), Vec::new())
-        };
-        tr.append(&mut tr_mix);
-        let (mut tr_cl, val_cl) = split_by_trial(&refs(d.cl_mix), a.val_share, a.seed);
-        tr.append(&mut tr_cl);
-        let val: Vec<&ChannelSequence> = val.into_iter().chain(val_mix).chain(val_cl).collect();
+        let (tr, val) =
+            training_data::fold_split(train_real, d.sets, a.val_share, split_seed, a.seed);
         let init = match d.pre {
             Some(m) => m.clone(),
             None => init_model(d.config, a.seed, &tr),
@@ -452,21 +449,10 @@ impl Run<'_> {
             self.fit(what, &init, &tr, &val, &self.tc)?
         };
         timing.push(format!("{what} {spe:.2} s/epoch ({} seqs)", tr.len()));
-        let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+        let calib = training_data::calibration_inputs(&tr);
         let mut qat_note = None;
         if a.qat_epochs > 0 {
-            let agreement: Vec<Vec<f32>> = d
-                .agreement
-                .iter()
-                .filter(|t| !excluded.contains(&t.id))
-                .flat_map(|t| {
-                    t.samples
-                        .iter()
-                        .enumerate()
-                        .filter(|(c, s)| t.contact.get(*c) == Some(&true) && !s.is_empty())
-                        .map(|(_, s)| s.clone())
-                })
-                .collect();
+            let agreement = training_data::agreement_channels(d.agreement, excluded);
             let q = self.qat(what, &model, &tr, &val, &calib, agreement)?;
             timing.push(format!("{what} QAT {:.2} s/epoch", q.seconds_per_epoch));
             if q.best_epoch > 0 {
@@ -521,7 +507,7 @@ impl Run<'_> {
                 split_seed,
                 &format!("{what} inner {j}"),
             )?;
-            let calib: Vec<&[f32]> = f.tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
+            let calib = training_data::calibration_inputs(&f.tr);
             let trials: Vec<&Trial> = d
                 .real_trials
                 .iter()
@@ -538,6 +524,9 @@ impl Run<'_> {
         Ok(runs)
     }
 
+    /// Sets the model's decision: with --tune-decision tuned on the validation trials (or
+    /// the inner cross-validation's runs `inner`) in the armed window, else on the validation
+    /// sequences; without it, the options' threshold and hysteresis.
     fn decision(
         &self,
         model: &mut FloatModel,
@@ -547,63 +536,9 @@ impl Run<'_> {
         inner: Option<&[product::WindowedRun]>,
     ) -> anyhow::Result<()> {
         let d = if self.a.tune_decision && (inner.is_some() || !val_trials.is_empty()) {
-            // The product's decision: the hand flag in the armed window of the validation
-            // trials (or of the inner cross-validation's held-out trials), with the quantized
-            // model the firmware runs.
-            let (runs, base) = with_quantized_model(model, calib, |m| {
-                let runs = match inner {
-                    Some(r) => r.to_vec(),
-                    None => product::windowed_runs(
-                        m,
-                        val_trials,
-                        &LabelConfig::default().scaled_to(self.a.rate_hz),
-                    )?,
-                };
-                anyhow::Ok((runs, slipguard_core::decision::HandConfig::of(m.config())))
-            })??;
-            let on = match inner {
-                Some(_) => format!("{}-fold inner CV held-out", self.a.tune_decision_cv),
-                None => "validation".to_string(),
-            };
-            let curve = product::operating_curve(
-                &runs,
-                &base,
-                &product::CURVE_THRESHOLDS,
-                &product::CURVE_RAISE_AFTER
-                    .iter()
-                    .copied()
-                    .filter(|&r| r >= self.a.min_raise)
-                    .collect::<Vec<_>>(),
-            );
-            let pick = product::pick_decision(&curve, self.a.max_false_alarm_rate)
-                .ok_or_else(|| anyhow::anyhow!("no validation trial with contact"))?;
-            eprintln!(
-                "  decision tuned on {} {on} trials (hand level, armed window): threshold {:.2}, raise {}: {}/{} failures ≥ 300 ms ahead, {}/{} successes with a false alarm",
-                runs.len(),
-                pick.threshold,
-                pick.raise_after,
-                pick.detected_300ms,
-                pick.failures,
-                pick.false_alarm_grasps,
-                pick.successes
-            );
-            DecisionConfig {
-                threshold_q15: Q15::from_f64(pick.threshold).header_threshold() as i16,
-                raise_after: pick.raise_after,
-                clear_after: base.decision.clear_after,
-            }
+            self.decision_on_armed_window(model, val_trials, calib, inner)?
         } else if self.a.tune_decision && !val.is_empty() {
-            let p = probabilities(model, &[], Kind::Float, val)?;
-            let (d, m) = tune_decision(&p, val, self.a.min_raise);
-            eprintln!(
-                "  decision tuned on validation sequences: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
-                Q15(d.threshold_q15).to_f64(),
-                d.raise_after,
-                d.clear_after,
-                100.0 * m.success_rate.unwrap_or(0.0),
-                100.0 * m.ahead_drop_rate.unwrap_or(0.0)
-            );
-            d
+            self.decision_on_sequences(model, val)?
         } else {
             DecisionConfig {
                 threshold_q15: Q15::from_f64(self.a.threshold).header_threshold() as i16,
@@ -613,6 +548,80 @@ impl Run<'_> {
         };
         set_decision(&mut model.config, d);
         Ok(())
+    }
+
+    /// The product's decision: the hand flag in the armed window of the validation trials (or
+    /// of the inner cross-validation's held-out trials), with the quantized model the firmware
+    /// runs; picked on the operating curve by --max-false-alarm-rate, raise ≥ --min-raise.
+    fn decision_on_armed_window(
+        &self,
+        model: &FloatModel,
+        val_trials: &[&Trial],
+        calib: &[&[f32]],
+        inner: Option<&[product::WindowedRun]>,
+    ) -> anyhow::Result<DecisionConfig> {
+        let (runs, base) = with_quantized_model(model, calib, |m| {
+            let runs = match inner {
+                Some(r) => r.to_vec(),
+                None => product::windowed_runs(
+                    m,
+                    val_trials,
+                    &LabelConfig::default().scaled_to(self.a.rate_hz),
+                )?,
+            };
+            anyhow::Ok((runs, slipguard_core::decision::HandConfig::of(m.config())))
+        })??;
+        let on = match inner {
+            Some(_) => format!("{}-fold inner CV held-out", self.a.tune_decision_cv),
+            None => "validation".to_string(),
+        };
+        let curve = product::operating_curve(
+            &runs,
+            &base,
+            &product::CURVE_THRESHOLDS,
+            &product::CURVE_RAISE_AFTER
+                .iter()
+                .copied()
+                .filter(|&r| r >= self.a.min_raise)
+                .collect::<Vec<_>>(),
+        );
+        let pick = product::pick_decision(&curve, self.a.max_false_alarm_rate)
+            .ok_or_else(|| anyhow::anyhow!("no validation trial with contact"))?;
+        eprintln!(
+            "  decision tuned on {} {on} trials (hand level, armed window): threshold {:.2}, raise {}: {}/{} failures ≥ 300 ms ahead, {}/{} successes with a false alarm",
+            runs.len(),
+            pick.threshold,
+            pick.raise_after,
+            pick.detected_300ms,
+            pick.failures,
+            pick.false_alarm_grasps,
+            pick.successes
+        );
+        Ok(DecisionConfig {
+            threshold_q15: Q15::from_f64(pick.threshold).header_threshold() as i16,
+            raise_after: pick.raise_after,
+            clear_after: base.decision.clear_after,
+        })
+    }
+
+    /// The decision tuned on the float model's validation sequences (no validation trials:
+    /// simulated data only).
+    fn decision_on_sequences(
+        &self,
+        model: &FloatModel,
+        val: &[&Sequence],
+    ) -> anyhow::Result<DecisionConfig> {
+        let p = probabilities(model, &[], Kind::Float, val)?;
+        let (d, m) = tune_decision(&p, val, self.a.min_raise);
+        eprintln!(
+            "  decision tuned on validation sequences: threshold {:.2}, raise {}, clear {} (val success {:.2}%, ahead {:.2}%)",
+            Q15(d.threshold_q15).to_f64(),
+            d.raise_after,
+            d.clear_after,
+            100.0 * m.success_rate.unwrap_or(0.0),
+            100.0 * m.ahead_drop_rate.unwrap_or(0.0)
+        );
+        Ok(d)
     }
 }
 
@@ -659,34 +668,70 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
     let not_paper = a
         .rate_arg
         .is_some_and(|r| (r - PAPER_RATE_HZ).abs() > 0.005 * PAPER_RATE_HZ);
-    if a.path.is_none() && (not_paper || a.sensor_arg == Some(Sensor::Suction)) {
-        a.sensor = a.sensor_arg.unwrap_or_default();
-        let profile = profile_of(a.sensor);
-        a.rate_hz = match (a.rate_arg, a.sensor) {
-            (Some(r), _) => r,
-            (None, Sensor::Suction) => profile.default_rate_mhz().hz_f32(),
-            (None, Sensor::Force) => PAPER_RATE_HZ,
-        };
-        check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
+    if a.path.is_none() && (not_paper || a.sensor_arg == Some(ProfileId::Suction)) {
+        simulated_only(a)?;
         return Ok(None);
     }
     let (path, trials) = load_real_trials(a.path.as_deref())?;
     let Some(first) = trials.first() else {
         anyhow::bail!("{}: no recordings", path.display());
     };
-    let (rate, unit) = (first.rate_hz, first.unit.clone());
-    let sensor = match unit {
-        slipguard_data::Unit::MilliNewton => Sensor::Force,
-        slipguard_data::Unit::Counts => Sensor::Suction,
-        ref u => anyhow::bail!(
-            "{}: recordings in {u}: train takes force in mN or suction pressure in counts",
-            path.display()
-        ),
+    let sensor = sensor_of_data(&path, first)?;
+    check_against_data(a, &path, first, sensor)?;
+    a.sensor = sensor;
+    a.rate_hz = first.rate_hz;
+    check::profile_rate(
+        &format!("{}: recorded at", path.display()),
+        first.rate_hz as f64,
+        &[sensor.profile()],
+    )
+    .map_err(|e| anyhow::anyhow!("{e}: record at a rate the board runs"))?;
+    check_labels(&path, &trials)?;
+    Ok(Some((path, trials)))
+}
+
+/// No data folder and a rate or sensor the shipped real trials are not at: the sensor
+/// (--sensor, else force) and rate (--rate-hz, else the profile's) of simulated trials only,
+/// checked against the profile.
+fn simulated_only(a: &mut Args) -> anyhow::Result<()> {
+    a.sensor = a.sensor_arg.unwrap_or(ProfileId::Hand);
+    let profile = a.sensor.profile();
+    a.rate_hz = match (a.rate_arg, a.sensor) {
+        (Some(r), _) => r,
+        (None, ProfileId::Suction) => profile.default_rate_mhz().hz_f32(),
+        (None, ProfileId::Hand) => PAPER_RATE_HZ,
     };
-    let name = |s: Sensor| match s {
-        Sensor::Force => "force (mN)",
-        Sensor::Suction => "suction (counts)",
+    check::profile_rate("--rate-hz", a.rate_hz as f64, &[profile])?;
+    Ok(())
+}
+
+/// The sensor of the recordings in `path` from their unit (`first`: the first recording).
+fn sensor_of_data(path: &Path, first: &Trial) -> anyhow::Result<ProfileId> {
+    let unit = first.unit.input_unit().ok_or_else(|| {
+        anyhow::anyhow!(
+            "{}: recordings in {}: train takes force in mN or suction pressure in counts",
+            path.display(),
+            first.unit
+        )
+    })?;
+    let q = ProfileQuery {
+        unit: Some(unit),
+        ..ProfileQuery::default()
     };
+    Ok(Profile::lookup(q)
+        .with_context(|| format!("{}", path.display()))?
+        .id)
+}
+
+/// --sensor and --rate-hz, when given, must be the data's (`sensor`, `first`'s rate).
+fn check_against_data(
+    a: &Args,
+    path: &Path,
+    first: &Trial,
+    sensor: ProfileId,
+) -> anyhow::Result<()> {
+    let rate = first.rate_hz;
+    let name = |s: ProfileId| format!("{} ({})", check::sensor_word(s), s.profile().unit);
     if let Some(s) = a.sensor_arg.filter(|&s| s != sensor) {
         anyhow::bail!(
             "--sensor {}: {} holds {} recordings ({}): drop --sensor, or give {} recordings",
@@ -705,14 +750,12 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
             first.id
         );
     }
-    a.sensor = sensor;
-    a.rate_hz = rate;
-    check::profile_rate(
-        &format!("{}: recorded at", path.display()),
-        rate as f64,
-        &[profile_of(sensor)],
-    )
-    .map_err(|e| anyhow::anyhow!("{e}: record at a rate the board runs"))?;
+    Ok(())
+}
+
+/// Refuses recordings none of which has an outcome; names those skipped for having none, and
+/// the failures without a lasting drop.
+fn check_labels(path: &Path, trials: &[Trial]) -> anyhow::Result<()> {
     let unknown: Vec<&str> = trials
         .iter()
         .filter(|t| t.outcome == slipguard_data::Outcome::Unknown)
@@ -746,18 +789,11 @@ fn resolve_data(a: &mut Args) -> anyhow::Result<Option<(PathBuf, Vec<Trial>)>> {
             no_drop.join(", ")
         );
     }
-    Ok(Some((path, trials)))
+    Ok(())
 }
 
-fn profile_of(sensor: Sensor) -> slipguard_app::profile::Profile {
-    match sensor {
-        Sensor::Force => slipguard_app::profile::Profile::HAND,
-        Sensor::Suction => slipguard_app::profile::Profile::SUCTION,
-    }
-}
-
-/// The blob header's name: --blob-name, else --name when it fits the field, else the variant's
-/// short name.
+/// The blob header's name: --blob-name, else --name when it fits the field, else the variant by
+/// its letter, `variant (c)`.
 fn blob_name_of(a: &Args, name: &str, v: Variant) -> String {
     if let Some(b) = &a.blob_name {
         return b.clone();
@@ -775,18 +811,39 @@ fn blob_name_of(a: &Args, name: &str, v: Variant) -> String {
             return short;
         }
     }
-    match v {
-        Variant::Lstm => "lstm",
-        Variant::StftLstm => "stft",
-        Variant::DataStftLstm => "data+stft",
-        Variant::LstmStftLstm => "dual",
-    }
-    .to_string()
+    // The variant by the paper's letter: its name (up to 14 characters) does not fit the
+    // header's 12.
+    format!("variant ({})", v.letter())
 }
 
+/// `slipguard train`, step by step: check the options against the data, set up the run, build
+/// the training sets, pick the QAT agreement recordings, then train every variant and write the
+/// summary.
 pub fn run(mut a: Args) -> anyhow::Result<()> {
     let variants = parse_variants(&a.variant)?;
     let data = resolve_data(&mut a)?;
+    check_options(&a)?;
+    let run = Run::new(&a)?;
+    let t_all = Instant::now();
+    let cl_cfg = closed_loop_config(&a)?;
+    let (real_trials, sets) = training_sets(&a, data, &cl_cfg)?;
+    let agreement_trials = agreement_trials(&a, &real_trials)?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let mut summary = Vec::new();
+    for v in variants {
+        let inputs = VariantInputs {
+            sets: &sets,
+            real_trials: &real_trials,
+            agreement: &agreement_trials,
+            rate_mhz: cl_cfg.rate_mhz,
+        };
+        summary.extend(run.variant(v, &inputs)?);
+    }
+    write_summary(&a.out, &run.command, &summary, t_all)
+}
+
+/// The option combinations clap cannot refuse on its own.
+fn check_options(a: &Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         a.epochs > 0 || a.init.is_some(),
         "--epochs 0 trains nothing: give --init CKPT (e.g. for QAT alone) or at least 1 epoch"
@@ -799,161 +856,280 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         a.tune_decision_cv != 1,
         "--tune-decision-cv 1: the inner cross-validation needs 0 (off) or 2 to 20 folds"
     );
-    let tc = TrainConfig {
-        lr: a.lr,
-        epochs: a.epochs,
-        batch: a.batch,
-        patience: a.patience,
-        seed: a.seed,
-        class_weights: class_weights(&a.class_weights)?,
-        // Durations in seconds become steps at the training rate (the data's, or --rate-hz).
-        label_lead: check::steps_at(a.label_lead_s, a.rate_hz),
-        start_weight: a.start_weight,
-        start_steps: check::steps_at(a.start_s, a.rate_hz),
-    };
-    let command = std::env::args().collect::<Vec<_>>().join(" ");
-    let run = Run { a: &a, tc, command };
-    let t_all = Instant::now();
-    // Data.
+    Ok(())
+}
+
+/// The simulated closed-loop training trials' settings, with the --closed-loop-policy blob
+/// loaded and checked.
+fn closed_loop_config(a: &Args) -> anyhow::Result<ClosedLoopTraining> {
     let rate_mhz = Millihertz::from_hz(a.rate_hz as f64);
-    let cl_cfg = ClosedLoopTraining {
+    Ok(ClosedLoopTraining {
         rate_mhz,
         lead_s: a.closed_loop_lead,
         false_alarm_hz: a.closed_loop_false_alarms,
         policy: match &a.closed_loop_policy {
-            Some(p) => Some(policy_blob(p, rate_mhz.0)?),
+            Some(p) => Some(policy_blob(p, rate_mhz)?),
             None => None,
         },
         policy_share: a.closed_loop_policy_share,
         ..Default::default()
+    })
+}
+
+/// The training sets: the recorded trials' sequences, the simulated and closed-loop ones, cut
+/// to each channel's contact onset (unless --from-grasp-start); also returns the recorded
+/// trials.
+fn training_sets(
+    a: &Args,
+    data: Option<(PathBuf, Vec<Trial>)>,
+    cl_cfg: &ClosedLoopTraining,
+) -> anyhow::Result<(Vec<Trial>, TrainingSets)> {
+    let (real_trials, real) = recorded(a, data)?;
+    let recipe = SimRecipe {
+        seed: a.sim_seed,
+        pretrain: a.sim_pretrain,
+        mix: a.sim_mix,
+        failure_share: a.sim_failure_share,
+        rate_hz: a.rate_hz,
     };
-    let mut real_trials: Vec<Trial> = Vec::new();
-    let real = match data {
-        Some((path, trials)) => {
-            // The paper's label durations at the data's rate.
-            let real = sequences_of(&trials, &LabelConfig::default().scaled_to(a.rate_hz));
-            real_trials = trials;
-            eprintln!(
-                "recorded: {} sequences from {} at {} Hz ({} failure sequences)",
-                real.len(),
-                path.display(),
-                a.rate_hz,
-                real.iter().filter(|s| s.failure()).count()
-            );
-            anyhow::ensure!(
-                !real.is_empty() || a.sim_mix + a.closed_loop_mix > 0,
-                "{}: no training sequences (no labelled channel in contact): check the recordings \
-                 with `slipguard label {} --stats`",
-                path.display(),
-                path.display()
-            );
-            real
-        }
-        None => {
-            anyhow::ensure!(
-                a.cv == 0,
-                "--cv needs recorded trials: give a folder of labelled recordings at {} Hz",
-                a.rate_hz
-            );
-            eprintln!(
-                "{} Hz {}: simulated trials only (give a folder of labelled recordings to train on them)",
-                a.rate_hz,
-                match a.sensor {
-                    Sensor::Force => "force",
-                    Sensor::Suction => "suction",
-                }
-            );
-            Vec::new()
-        }
-    };
-    let (real, sim_pre, sim_mix) = match a.sensor {
-        Sensor::Force => {
-            let mut pre =
-                sim_force_sequences(a.sim_seed, a.sim_pretrain, a.sim_failure_share, a.rate_hz);
+    let (sim_pre, sim_mix) = match a.sensor {
+        ProfileId::Hand => {
+            let (mut pre, mix) = recipe.force();
             pre.extend(training_sequences(
                 a.closed_loop_seed,
                 a.closed_loop_pretrain,
-                &cl_cfg,
+                cl_cfg,
             ));
-            let mix =
-                sim_force_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share, a.rate_hz);
-            (real, pre, mix)
+            (pre, mix)
         }
-        Sensor::Suction => {
-            let mix = sim_suction_sequences(a.sim_seed + 1, a.sim_mix, a.sim_failure_share);
-            (real, Vec::new(), mix)
-        }
+        ProfileId::Suction => (Vec::new(), recipe.suction_mix()),
     };
     anyhow::ensure!(
-        a.sensor == Sensor::Force || a.closed_loop_pretrain + a.closed_loop_mix == 0,
+        a.sensor == ProfileId::Hand || a.closed_loop_pretrain + a.closed_loop_mix == 0,
         "--closed-loop-pretrain/--closed-loop-mix simulate the hand's force pads: use --sensor force"
     );
-    let cl_mix = training_sequences(a.closed_loop_seed + 1, a.closed_loop_mix, &cl_cfg);
-    // Every sequence starts where the firmware's model state starts: at the channel's contact
-    // onset (the rule depends on the sensor's unit, scale and rate only, not on the variant).
-    let (real, sim_pre, sim_mix, cl_mix) = if a.from_grasp_start {
-        (real, sim_pre, sim_mix, cl_mix)
-    } else {
-        let probe = match a.sensor {
-            Sensor::Force => ev::force_config(Variant::Lstm, false, 1, "", cl_cfg.rate_mhz),
-            Sensor::Suction => ev::suction_config(Variant::Lstm, false, 1, ""),
-        };
-        let rule = OnsetRule::of(&probe);
-        let n0 = real.len() + sim_pre.len() + sim_mix.len() + cl_mix.len();
-        let cut = (
-            product::cut_to_contact(real, &rule),
-            product::cut_to_contact(sim_pre, &rule),
-            product::cut_to_contact(sim_mix, &rule),
-            product::cut_to_contact(cl_mix, &rule),
-        );
-        eprintln!(
-            "sequences start at each channel's contact onset ({} mN-equivalent Q1.15 {}, {} steps on, {} off): {} of {} kept",
-            ContactConfig::FORCE_ON_MN,
-            rule.contact.on_q15,
-            rule.contact.on_after,
-            rule.contact.off_after,
-            cut.0.len() + cut.1.len() + cut.2.len() + cut.3.len(),
-            n0
-        );
-        cut
+    let cl_mix = training_sequences(a.closed_loop_seed + 1, a.closed_loop_mix, cl_cfg);
+    let sets = TrainingSets {
+        real,
+        sim_pre,
+        sim_mix,
+        cl_mix,
     };
-    if !sim_pre.is_empty() || !sim_mix.is_empty() || !cl_mix.is_empty() {
+    let sets = if a.from_grasp_start {
+        sets
+    } else {
+        from_contact_onset(a, sets, cl_cfg.rate_mhz)
+    };
+    if sets.has_simulated() {
         eprintln!(
             "simulated: {} pre-training and {} mixed sequences, {} closed-loop mixed sequences",
-            sim_pre.len(),
-            sim_mix.len(),
-            cl_mix.len()
+            sets.sim_pre.len(),
+            sets.sim_mix.len(),
+            sets.cl_mix.len()
         );
     }
-    // Whole recordings for the QAT agreement check (unlabelled use).
-    let agreement_trials: Vec<Trial> = match (&a.qat_agreement_data, a.sensor) {
+    Ok((real_trials, sets))
+}
+
+/// The recorded trials and their sequences (none without a data folder: simulated trials
+/// only).
+fn recorded(
+    a: &Args,
+    data: Option<(PathBuf, Vec<Trial>)>,
+) -> anyhow::Result<(Vec<Trial>, Vec<Sequence>)> {
+    let Some((path, trials)) = data else {
+        anyhow::ensure!(
+            a.cv == 0,
+            "--cv needs recorded trials: give a folder of labelled recordings at {} Hz",
+            a.rate_hz
+        );
+        eprintln!(
+            "{} Hz {}: simulated trials only (give a folder of labelled recordings to train on them)",
+            a.rate_hz,
+            check::sensor_word(a.sensor)
+        );
+        return Ok((Vec::new(), Vec::new()));
+    };
+    let real = training_data::recorded_sequences(&trials, a.rate_hz);
+    eprintln!(
+        "recorded: {} sequences from {} at {} Hz ({} failure sequences)",
+        real.len(),
+        path.display(),
+        a.rate_hz,
+        real.iter().filter(|s| s.failure()).count()
+    );
+    anyhow::ensure!(
+        !real.is_empty() || a.sim_mix + a.closed_loop_mix > 0,
+        "{}: no training sequences (no labelled channel in contact): check the recordings \
+         with `slipguard label {} --stats`",
+        path.display(),
+        path.display()
+    );
+    Ok((trials, real))
+}
+
+/// Every sequence cut to start where the firmware's model state starts: at the channel's
+/// contact onset (the rule depends on the sensor's unit, scale and rate only, not on the
+/// variant).
+fn from_contact_onset(a: &Args, sets: TrainingSets, rate_mhz: Millihertz) -> TrainingSets {
+    let probe = match a.sensor {
+        ProfileId::Hand => ev::force_config(Variant::Lstm, false, 1, "", rate_mhz),
+        ProfileId::Suction => ev::suction_config(Variant::Lstm, false, 1, ""),
+    };
+    let rule = OnsetRule::of(&probe);
+    let n0 = sets.len();
+    let cut = sets.cut_to_contact(&rule);
+    eprintln!(
+        "sequences start at each channel's contact onset ({} mN-equivalent Q1.15 {}, {} steps on, {} off): {} of {} kept",
+        ContactConfig::FORCE_ON_MN,
+        rule.contact.on_q15,
+        rule.contact.on_after,
+        rule.contact.off_after,
+        cut.len(),
+        n0
+    );
+    cut
+}
+
+/// Whole recordings for the QAT agreement check (unlabelled use): --qat-agreement-data, else
+/// the recorded trials, else the real force trials; none without QAT or with `none`.
+fn agreement_trials(a: &Args, real_trials: &[Trial]) -> anyhow::Result<Vec<Trial>> {
+    let trials = match (&a.qat_agreement_data, a.sensor) {
         _ if a.qat_epochs == 0 => Vec::new(),
         (Some(p), _) if p.as_os_str() == "none" => Vec::new(),
         (Some(p), _) => load_real_trials(Some(p))?.1,
-        (None, _) if !real_trials.is_empty() => real_trials.clone(),
-        (None, Sensor::Force) => load_real_trials(a.path.as_deref())?.1,
-        (None, Sensor::Suction) => Vec::new(),
+        (None, _) if !real_trials.is_empty() => real_trials.to_vec(),
+        (None, ProfileId::Hand) => load_real_trials(a.path.as_deref())?.1,
+        (None, ProfileId::Suction) => Vec::new(),
     };
-    if !agreement_trials.is_empty() {
+    if !trials.is_empty() {
         eprintln!(
             "QAT agreement check on the whole contact channels of {} recorded trials",
-            agreement_trials.len()
+            trials.len()
         );
     }
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let mut summary = Vec::new();
-    for v in variants {
+    Ok(trials)
+}
+
+/// `train-summary.txt` in `out` (the command, one line per model, the total time); the lines
+/// also go to stdout.
+fn write_summary(
+    out: &Path,
+    command: &str,
+    summary: &[String],
+    t_all: Instant,
+) -> anyhow::Result<()> {
+    let log = out.join("train-summary.txt");
+    std::fs::write(
+        &log,
+        format!(
+            "{}\n{}\ntotal {:.0} s\n",
+            command,
+            summary.join("\n"),
+            t_all.elapsed().as_secs_f64()
+        ),
+    )?;
+    println!("{}", summary.join("\n"));
+    eprintln!("total {:.0} s", t_all.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// What every variant's training draws on.
+struct VariantInputs<'d> {
+    sets: &'d TrainingSets,
+    real_trials: &'d [Trial],
+    agreement: &'d [Trial],
+    rate_mhz: Millihertz,
+}
+
+/// One fold's checkpoint, with what its logs and blob need.
+struct TrainedFold<'d> {
+    ck: Checkpoint,
+    history: Vec<EpochLog>,
+    best_epoch: usize,
+    n_train: usize,
+    n_val: usize,
+    calib: Vec<&'d [f32]>,
+}
+
+/// The cross-validation's held-out results of one variant, pooled over its folds.
+#[derive(Default)]
+struct CvPool<'d> {
+    /// The quantized model's hand-level grasps in the armed window.
+    armed_hand: Vec<slipguard_data::armed::ArmedGrasp>,
+    /// The float model's held-out sequences…
+    seqs: Vec<&'d Sequence>,
+    /// … with the model's decision …
+    preds: Vec<Vec<slipguard_data::trial::Stability>>,
+    /// … and with p ≥ 0.5 alone.
+    plain: Vec<Vec<slipguard_data::trial::Stability>>,
+}
+
+impl Run<'_> {
+    fn new(a: &Args) -> anyhow::Result<Run<'_>> {
+        let tc = TrainConfig {
+            lr: a.lr,
+            epochs: a.epochs,
+            batch: a.batch,
+            patience: a.patience,
+            seed: a.seed,
+            class_weights: class_weights(&a.class_weights)?,
+            // Durations in seconds become steps at the training rate (the data's, or --rate-hz).
+            label_lead: check::steps_at(a.label_lead_s, a.rate_hz),
+            start_weight: a.start_weight,
+            start_steps: check::steps_at(a.start_s, a.rate_hz),
+        };
+        let command = std::env::args().collect::<Vec<_>>().join(" ");
+        Ok(Run { a, tc, command })
+    }
+
+    /// Trains variant `v`: its model settings, the starting model, then every fold (or the one
+    /// model) trained, its decision set and written; returns its summary lines.
+    fn variant(&self, v: Variant, d: &VariantInputs<'_>) -> anyhow::Result<Vec<String>> {
+        let a = self.a;
+        let (name, config) = self.model_config(v, d.rate_mhz)?;
+        let mut timing = Vec::new();
+        let pre = self.starting_model(v, &config, &d.sets.sim_pre, &mut timing)?;
+        let folds = self.folds(&d.sets.real, d.real_trials.len())?;
+        let data = FoldData {
+            sets: d.sets,
+            pre: pre.as_ref(),
+            config,
+            agreement: d.agreement,
+            real_trials: d.real_trials,
+        };
+        let mut pool = CvPool::default();
+        for (k, held) in folds.iter().enumerate() {
+            let fold = self.train_fold(&data, k, held, &mut timing)?;
+            if a.cv > 0 {
+                self.write_fold(&data, &name, k, held, &fold, &mut pool)?;
+            } else {
+                self.write_model(&name, &fold)?;
+            }
+        }
+        Ok(if a.cv > 0 {
+            self.cv_summary(&name, &pool, &timing)
+        } else {
+            vec![format!("{name}: {}", timing.join(", "))]
+        })
+    }
+
+    /// The model's name and header settings for variant `v` (--stft-window applied).
+    fn model_config(
+        &self,
+        v: Variant,
+        rate_mhz: Millihertz,
+    ) -> anyhow::Result<(String, slipguard_core::blob::ModelConfig)> {
+        let a = self.a;
         let name = match &a.name {
             Some(n) if n.contains("{variant}") => n.replace("{variant}", v.name()),
             Some(n) => n.clone(),
             None => v.name().to_string(),
         };
-        let blob_name = blob_name_of(&a, &name, v);
+        let blob_name = blob_name_of(a, &name, v);
         let mut config = match a.sensor {
-            Sensor::Force => {
-                ev::force_config(v, a.force_diff, a.hidden, &blob_name, cl_cfg.rate_mhz)
-            }
-            Sensor::Suction => ev::suction_config(v, a.force_diff, a.hidden, &blob_name),
+            ProfileId::Hand => ev::force_config(v, a.force_diff, a.hidden, &blob_name, rate_mhz),
+            ProfileId::Suction => ev::suction_config(v, a.force_diff, a.hidden, &blob_name),
         };
         if let Some(n) = a.stft_window.filter(|_| v.uses_bands()) {
             config.stft.window_len = n as u8;
@@ -969,9 +1145,21 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
             a.hidden,
             config.macs_per_step()
         );
-        // Pre-training on simulated trials, shared by all folds.
-        let mut timing = Vec::new();
-        let pre = if let Some(p) = &a.init {
+        Ok((name, config))
+    }
+
+    /// The model every fold starts from: --init's weights, else a model pre-trained on the
+    /// simulated sequences `sim_pre` (shared by all folds), else none (each fold starts
+    /// afresh).
+    fn starting_model(
+        &self,
+        v: Variant,
+        config: &slipguard_core::blob::ModelConfig,
+        sim_pre: &[Sequence],
+        timing: &mut Vec<String>,
+    ) -> anyhow::Result<Option<FloatModel>> {
+        let a = self.a;
+        if let Some(p) = &a.init {
             let ck = checkpoint::read(p).with_context(|| format!("--init {}", p.display()))?;
             anyhow::ensure!(
                 ck.model.config.variant == v
@@ -988,216 +1176,242 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
             );
             let mut m = ck.model;
             m.config.name = config.name;
-            Some(m)
-        } else if sim_pre.is_empty() {
-            None
-        } else {
-            let all = refs(&sim_pre);
-            let init = init_model(config, a.seed, &all);
-            let (tr, val) = split_by_trial(&all, a.val_share, a.seed);
-            let tc = TrainConfig {
-                epochs: a.pretrain_epochs,
-                ..run.tc.clone()
-            };
-            let (m, _, spe, _) = run.fit("pretrain", &init, &tr, &val, &tc)?;
-            timing.push(format!("pretrain {spe:.2} s/epoch ({} seqs)", tr.len()));
-            Some(m)
-        };
-        let folds: Vec<Vec<String>> = if a.cv > 0 {
-            let n_trials = real_trials.len();
-            anyhow::ensure!(
-                a.cv <= n_trials,
-                "--cv {}: at most the number of real trials ({n_trials}) folds",
-                a.cv
-            );
-            cv_folds(&real, a.cv)
-        } else {
-            vec![Vec::new()]
-        };
-        let mut armed_hand: Vec<slipguard_data::armed::ArmedGrasp> = Vec::new();
-        let mut pooled: (Vec<&Sequence>, Vec<Vec<_>>, Vec<Vec<_>>) =
-            (Vec::new(), Vec::new(), Vec::new());
-        let data = FoldData {
-            real: &real,
-            sim_mix: &sim_mix,
-            cl_mix: &cl_mix,
-            pre: pre.as_ref(),
-            config,
-            agreement: &agreement_trials,
-            real_trials: &real_trials,
-        };
-        for (k, held) in folds.iter().enumerate() {
-            let train_real: Vec<&Sequence> = real
-                .iter()
-                .filter(|s| !held.contains(&s.cs.trial_id))
-                .collect();
-            let what = if a.cv > 0 {
-                format!("fold {k}")
-            } else {
-                "train".to_string()
-            };
-            let FoldFit {
-                mut model,
-                best_epoch,
-                spe,
-                history,
-                qat_note,
-                tr,
-                val,
-                timing: t,
-            } = run.fit_fold(&data, &train_real, held, a.seed + k as u64, &what)?;
-            timing.extend(t);
-            let calib: Vec<&[f32]> = tr.iter().take(64).map(|s| s.samples.as_slice()).collect();
-            let val_seqs: Vec<&Sequence> = real
-                .iter()
-                .chain(&sim_mix)
-                .filter(|s| val.iter().any(|v| std::ptr::eq(*v, &s.cs)))
-                .collect();
-            let val_ids: std::collections::BTreeSet<&str> =
-                val.iter().map(|v| v.trial_id.as_str()).collect();
-            let val_trials: Vec<&Trial> = real_trials
-                .iter()
-                .filter(|t| val_ids.contains(t.id.as_str()))
-                .collect();
-            let inner = if a.tune_decision && a.tune_decision_cv > 0 && !real_trials.is_empty() {
-                Some(run.inner_cv_runs(&data, &train_real, held, k, &what)?)
-            } else {
-                None
-            };
-            run.decision(&mut model, &val_seqs, &val_trials, &calib, inner.as_deref())?;
-            let mut extra = std::collections::BTreeMap::new();
-            extra.insert("train_command".into(), run.command.clone());
-            extra.insert("best_epoch".into(), best_epoch.to_string());
-            extra.insert("seconds_per_epoch".into(), format!("{spe:.3}"));
-            if let Some(n) = qat_note {
-                extra.insert("qat".into(), n);
-            }
-            let ids = |v: &[&ChannelSequence]| {
-                let mut ids: Vec<String> = v.iter().map(|s| s.trial_id.clone()).collect();
-                ids.sort();
-                ids.dedup();
-                ids.join(",")
-            };
-            extra.insert("val_trials".into(), ids(&val));
-            if a.cv > 0 {
-                extra.insert("heldout_trials".into(), held.join(","));
-                extra.insert("fold".into(), format!("{k}/{}", a.cv));
-            }
-            let ck = Checkpoint { model, extra };
-            if a.cv > 0 {
-                let p = a.out.join(&name).join(format!("fold{k}.safetensors"));
-                checkpoint::write(&p, &ck)?;
-                write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
-                let test: Vec<&Sequence> = real
-                    .iter()
-                    .filter(|s| held.contains(&s.cs.trial_id))
-                    .collect();
-                let p = probabilities(&ck.model, &[], Kind::Float, &test)?;
-                let d = DecisionConfig::of(&ck.model.config);
-                let preds: Vec<_> = p.iter().map(|q| decide(d, q)).collect();
-                let m = metrics_of(&test, &preds);
-                eprintln!(
-                    "  fold {k} held out {}: success {:.2}%, ahead-drop {:?}",
-                    held.join(" "),
-                    100.0 * m.success_rate.unwrap_or(0.0),
-                    m.ahead_drop_rate.map(|x| format!("{:.2}%", 100.0 * x))
-                );
-                let plain = DecisionConfig {
-                    threshold_q15: 16384,
-                    raise_after: 1,
-                    clear_after: 1,
-                };
-                pooled.2.extend(p.iter().map(|q| decide(plain, q)));
-                // The product's figures: the fold's quantized model over its held-out trials,
-                // hand level, armed window.
-                let held_trials: Vec<&Trial> = real_trials
-                    .iter()
-                    .filter(|t| held.contains(&t.id))
-                    .collect();
-                let grasps = with_quantized_model(&ck.model, &calib, |qm| {
-                    let hand = slipguard_core::decision::HandConfig::of(qm.config());
-                    product::windowed_runs(
-                        qm,
-                        &held_trials,
-                        &LabelConfig::default().scaled_to(a.rate_hz),
-                    )
-                    .map(|runs| runs.iter().map(|w| w.grasp_with(&hand)).collect::<Vec<_>>())
-                })??;
-                armed_hand.extend(grasps);
-                pooled.0.extend(test);
-                pooled.1.extend(preds);
-            } else {
-                let p = a.out.join(format!("{name}.safetensors"));
-                checkpoint::write(&p, &ck)?;
-                write_train_log(&p, &history, best_epoch, tr.len(), val.len())?;
-                let blob = quantize_model(&ck.model, &calib)?;
-                let bp = a.out.join(format!("{name}.bin"));
-                std::fs::write(&bp, &blob).with_context(|| format!("writing {}", bp.display()))?;
-                eprintln!(
-                    "  wrote {} and {} ({} bytes)",
-                    p.display(),
-                    bp.display(),
-                    blob.len()
-                );
-            }
+            return Ok(Some(m));
         }
-        if a.cv > 0 {
-            let r = slipguard_data::armed::ArmedReport::of(&armed_hand);
-            let line = format!(
-                "{name}: {}-fold CV quantized, hand level, armed window: {}",
-                a.cv,
-                r.summary()
-            );
-            eprintln!("{line}");
-            summary.push(line);
-            let m = metrics_of(&pooled.0, &pooled.1);
-            let m0 = metrics_of(&pooled.0, &pooled.2);
-            let line = format!(
-                "{name}: {}-fold CV float: success {:.2}%, ahead-drop {:.2}%, false alarms {:.2}% (p>=0.5 alone: {:.2}% / {:.2}%) ({} seqs, {} failures); {}",
-                a.cv,
-                100.0 * m.success_rate.unwrap_or(0.0),
-                100.0 * m.ahead_drop_rate.unwrap_or(0.0),
-                100.0 * m.false_alarm_rate.unwrap_or(0.0),
-                100.0 * m0.success_rate.unwrap_or(0.0),
-                100.0 * m0.ahead_drop_rate.unwrap_or(0.0),
-                pooled.0.len(),
-                m.failure_sequences,
-                timing.join(", ")
-            );
-            eprintln!("{line}");
-            summary.push(line);
-        } else {
-            summary.push(format!("{name}: {}", timing.join(", ")));
+        if sim_pre.is_empty() {
+            return Ok(None);
         }
+        let all = training_data::channel_refs(sim_pre);
+        let init = init_model(*config, a.seed, &all);
+        let (tr, val) = split_by_trial(&all, a.val_share, a.seed);
+        let tc = TrainConfig {
+            epochs: a.pretrain_epochs,
+            ..self.tc.clone()
+        };
+        let (m, _, spe, _) = self.fit("pretrain", &init, &tr, &val, &tc)?;
+        timing.push(format!("pretrain {spe:.2} s/epoch ({} seqs)", tr.len()));
+        Ok(Some(m))
     }
-    let log = a.out.join("train-summary.txt");
-    std::fs::write(
-        &log,
-        format!(
-            "{}\n{}\ntotal {:.0} s\n",
-            run.command,
-            summary.join("\n"),
-            t_all.elapsed().as_secs_f64()
-        ),
-    )?;
-    println!("{}", summary.join("\n"));
-    eprintln!("total {:.0} s", t_all.elapsed().as_secs_f64());
-    Ok(())
+
+    /// Each fold's held-out trials (--cv), or one fold holding out nothing.
+    fn folds(&self, real: &[Sequence], n_trials: usize) -> anyhow::Result<Vec<Vec<String>>> {
+        let a = self.a;
+        if a.cv == 0 {
+            return Ok(vec![Vec::new()]);
+        }
+        anyhow::ensure!(
+            a.cv <= n_trials,
+            "--cv {}: at most the number of real trials ({n_trials}) folds",
+            a.cv
+        );
+        Ok(cv_folds(real, a.cv))
+    }
+
+    /// Fold `k` (holding out the trials in `held`): trained ([`Run::fit_fold`]), its decision
+    /// set ([`Run::decision`]), as a checkpoint with the run's notes.
+    fn train_fold<'d>(
+        &self,
+        d: &FoldData<'d>,
+        k: usize,
+        held: &[String],
+        timing: &mut Vec<String>,
+    ) -> anyhow::Result<TrainedFold<'d>> {
+        let a = self.a;
+        let real = &d.sets.real;
+        let train_real: Vec<&Sequence> = real
+            .iter()
+            .filter(|s| !held.contains(&s.cs.trial_id))
+            .collect();
+        let what = if a.cv > 0 {
+            format!("fold {k}")
+        } else {
+            "train".to_string()
+        };
+        let FoldFit {
+            mut model,
+            best_epoch,
+            spe,
+            history,
+            qat_note,
+            tr,
+            val,
+            timing: t,
+        } = self.fit_fold(d, &train_real, held, a.seed + k as u64, &what)?;
+        timing.extend(t);
+        let calib = training_data::calibration_inputs(&tr);
+        let val_seqs: Vec<&Sequence> = real
+            .iter()
+            .chain(&d.sets.sim_mix)
+            .filter(|s| val.iter().any(|v| std::ptr::eq(*v, &s.cs)))
+            .collect();
+        let val_ids: std::collections::BTreeSet<&str> =
+            val.iter().map(|v| v.trial_id.as_str()).collect();
+        let val_trials: Vec<&Trial> = d
+            .real_trials
+            .iter()
+            .filter(|t| val_ids.contains(t.id.as_str()))
+            .collect();
+        let inner = if a.tune_decision && a.tune_decision_cv > 0 && !d.real_trials.is_empty() {
+            Some(self.inner_cv_runs(d, &train_real, held, k, &what)?)
+        } else {
+            None
+        };
+        self.decision(&mut model, &val_seqs, &val_trials, &calib, inner.as_deref())?;
+        let mut extra = std::collections::BTreeMap::new();
+        extra.insert("train_command".into(), self.command.clone());
+        extra.insert("best_epoch".into(), best_epoch.to_string());
+        extra.insert("seconds_per_epoch".into(), format!("{spe:.3}"));
+        if let Some(n) = qat_note {
+            extra.insert("qat".into(), n);
+        }
+        let ids = |v: &[&ChannelSequence]| {
+            let mut ids: Vec<String> = v.iter().map(|s| s.trial_id.clone()).collect();
+            ids.sort();
+            ids.dedup();
+            ids.join(",")
+        };
+        extra.insert("val_trials".into(), ids(&val));
+        if a.cv > 0 {
+            extra.insert("heldout_trials".into(), held.join(","));
+            extra.insert("fold".into(), format!("{k}/{}", a.cv));
+        }
+        Ok(TrainedFold {
+            ck: Checkpoint { model, extra },
+            history,
+            best_epoch,
+            n_train: tr.len(),
+            n_val: val.len(),
+            calib,
+        })
+    }
+
+    /// A cross-validation fold: its checkpoint and logs written, its held-out trials scored
+    /// (float sequences, and the quantized model hand level in the armed window) into `pool`.
+    fn write_fold<'d>(
+        &self,
+        d: &FoldData<'d>,
+        name: &str,
+        k: usize,
+        held: &[String],
+        fold: &TrainedFold<'_>,
+        pool: &mut CvPool<'d>,
+    ) -> anyhow::Result<()> {
+        let a = self.a;
+        let ck = &fold.ck;
+        let p = a.out.join(name).join(format!("fold{k}.safetensors"));
+        checkpoint::write(&p, ck)?;
+        write_train_log(&p, &fold.history, fold.best_epoch, fold.n_train, fold.n_val)?;
+        let test: Vec<&Sequence> = d
+            .sets
+            .real
+            .iter()
+            .filter(|s| held.contains(&s.cs.trial_id))
+            .collect();
+        let p = probabilities(&ck.model, &[], Kind::Float, &test)?;
+        let dc = DecisionConfig::of(&ck.model.config);
+        let preds: Vec<_> = p.iter().map(|q| decide(dc, q)).collect();
+        let m = metrics_of(&test, &preds);
+        eprintln!(
+            "  fold {k} held out {}: success {:.2}%, ahead-drop {:?}",
+            held.join(" "),
+            100.0 * m.success_rate.unwrap_or(0.0),
+            m.ahead_drop_rate.map(|x| format!("{:.2}%", 100.0 * x))
+        );
+        let plain = DecisionConfig {
+            threshold_q15: 16384,
+            raise_after: 1,
+            clear_after: 1,
+        };
+        pool.plain.extend(p.iter().map(|q| decide(plain, q)));
+        // The product's figures: the fold's quantized model over its held-out trials,
+        // hand level, armed window.
+        let held_trials: Vec<&Trial> = d
+            .real_trials
+            .iter()
+            .filter(|t| held.contains(&t.id))
+            .collect();
+        let grasps = with_quantized_model(&ck.model, &fold.calib, |qm| {
+            let hand = slipguard_core::decision::HandConfig::of(qm.config());
+            product::windowed_runs(
+                qm,
+                &held_trials,
+                &LabelConfig::default().scaled_to(a.rate_hz),
+            )
+            .map(|runs| runs.iter().map(|w| w.grasp_with(&hand)).collect::<Vec<_>>())
+        })??;
+        pool.armed_hand.extend(grasps);
+        pool.seqs.extend(test);
+        pool.preds.extend(preds);
+        Ok(())
+    }
+
+    /// The one model (no --cv): checkpoint, logs and quantized blob written.
+    fn write_model(&self, name: &str, fold: &TrainedFold<'_>) -> anyhow::Result<()> {
+        let a = self.a;
+        let p = a.out.join(format!("{name}.safetensors"));
+        checkpoint::write(&p, &fold.ck)?;
+        write_train_log(&p, &fold.history, fold.best_epoch, fold.n_train, fold.n_val)?;
+        let blob = quantize_model(&fold.ck.model, &fold.calib)?;
+        let bp = a.out.join(format!("{name}.bin"));
+        std::fs::write(&bp, &blob).with_context(|| format!("writing {}", bp.display()))?;
+        eprintln!(
+            "  wrote {} and {} ({} bytes)",
+            p.display(),
+            bp.display(),
+            blob.len()
+        );
+        Ok(())
+    }
+
+    /// The cross-validation's two summary lines (quantized hand level in the armed window;
+    /// float), also printed.
+    fn cv_summary(&self, name: &str, pool: &CvPool<'_>, timing: &[String]) -> Vec<String> {
+        let a = self.a;
+        let mut summary = Vec::new();
+        let r = slipguard_data::armed::ArmedReport::of(&pool.armed_hand);
+        let line = format!(
+            "{name}: {}-fold CV quantized, hand level, armed window: {}",
+            a.cv,
+            r.summary()
+        );
+        eprintln!("{line}");
+        summary.push(line);
+        let m = metrics_of(&pool.seqs, &pool.preds);
+        let m0 = metrics_of(&pool.seqs, &pool.plain);
+        let line = format!(
+            "{name}: {}-fold CV float: success {:.2}%, ahead-drop {:.2}%, false alarms {:.2}% (p>=0.5 alone: {:.2}% / {:.2}%) ({} seqs, {} failures); {}",
+            a.cv,
+            100.0 * m.success_rate.unwrap_or(0.0),
+            100.0 * m.ahead_drop_rate.unwrap_or(0.0),
+            100.0 * m.false_alarm_rate.unwrap_or(0.0),
+            100.0 * m0.success_rate.unwrap_or(0.0),
+            100.0 * m0.ahead_drop_rate.unwrap_or(0.0),
+            pool.seqs.len(),
+            m.failure_sequences,
+            timing.join(", ")
+        );
+        eprintln!("{line}");
+        summary.push(line);
+        summary
+    }
 }
 
 /// The --closed-loop-policy blob, checked: a blob that does not parse would only send fault
 /// frames and one at another rate would see other signals, either giving useless data.
-fn policy_blob(path: &Path, rate_mhz: u32) -> anyhow::Result<slipguard_core::blob::AlignedBlob> {
+fn policy_blob(
+    path: &Path,
+    rate_mhz: Millihertz,
+) -> anyhow::Result<slipguard_core::blob::AlignedBlob> {
     let blob = slipguard::replay::load_blob(path)?;
     let model = slipguard_core::model::Model::from_bytes(blob.as_bytes())
         .map_err(|e| anyhow::anyhow!("--closed-loop-policy {}: {e}", path.display()))?;
     let got = model.config().sample_rate_mhz;
     anyhow::ensure!(
-        got == Millihertz(rate_mhz),
+        got == rate_mhz,
         "--closed-loop-policy {} runs at {} Hz, not the --rate-hz {} Hz being trained",
         path.display(),
         got.hz(),
-        rate_mhz as f64 / 1000.0
+        rate_mhz.hz()
     );
     Ok(blob)
 }
