@@ -36,6 +36,7 @@ pub const BATCH_TILE_LANES: usize = 16;
 #[inline(always)]
 pub fn madd_pair(a: u32, b: u32) -> i32 {
     let lo = |v: u32| v as u16 as i16 as i32;
+    // `>> 16`: the word's upper i16 half (the pair's second element).
     let hi = |v: u32| (v >> 16) as u16 as i16 as i32;
     // |each product| ≤ 2^30: the sum of two wraps only for (-2^15)² + (-2^15)², which int8
     // weights never meet; wrapping is what PMADDWD does.
@@ -410,8 +411,12 @@ mod x86 {
             let k = (p.shift as u32).wrapping_sub(33);
             let mx = _mm256_set1_epi32(p.mx);
             let mh = _mm256_set1_epi32(p.mh);
+            // The row's requantize shift is `shift` on the 64-bit product; the high word
+            // already drops 32, so `k + 1 = shift − 32` remains, and `1 << k` rounds half up
+            // before it (as the core's `lstm::requant`).
             let half = _mm256_set1_epi32(1 << (k & 31));
             let cnt = _mm_cvtsi32_si128((k + 1) as i32);
+            // Bias Q4.12 (as the core's row params), clamped to ±2^30 so the i32 add cannot wrap.
             let bias = _mm256_set1_epi32(p.bias_q12.clamp(-(1 << 30), 1 << 30));
             for i in (0..n8).step_by(8) {
                 // SAFETY: i + 8 ≤ n8 ≤ lanes = a.len() = b.len(); unaligned loads.
@@ -453,6 +458,7 @@ mod x86 {
     ) -> usize {
         let n8 = lanes / 8 * 8;
         let tanh = interval_table(true);
+        // Q0.15 × Q0.15 products are Q0.30; `+ 2^14` then `>> 15` rounds them back to Q0.15.
         let round15 = _mm256_set1_epi32(1 << 14);
         let ig_half = _mm256_set1_epi32(k.ig_half);
         let ig_cnt = _mm_cvtsi32_si128(k.ig_shift as i32);
@@ -477,6 +483,8 @@ mod x86 {
                 ) else {
                     return 0;
                 };
+                // h is stored two i16 units a word: unit u is bits 16u..16u+15, so keep the other
+                // half and shift the new value up by 16u.
                 let keep = _mm256_set1_epi32(!(0xffff_u32 << (16 * u)) as i32);
                 let up = _mm_cvtsi32_si128(16 * u as i32);
                 for i in (0..n8).step_by(8) {
