@@ -416,7 +416,7 @@ mod x86 {
             // before it (as the core's `lstm::requant`).
             let half = _mm256_set1_epi32(1 << (k & 31));
             let cnt = _mm_cvtsi32_si128((k + 1) as i32);
-            // Bias Q4.12 (as the core's row params), clamped to ±2^30 so the i32 add cannot wrap.
+            // Bias Q3.12 (the core's `LstmRowParams::bias_q12`), clamped to ±2^30 so the i32 add cannot wrap.
             let bias = _mm256_set1_epi32(p.bias_q12.clamp(-(1 << 30), 1 << 30));
             for i in (0..n8).step_by(8) {
                 // SAFETY: i + 8 ≤ n8 ≤ lanes = a.len() = b.len(); unaligned loads.
