@@ -281,6 +281,70 @@ pub fn fused_name(f: &FusedHand) -> String {
     f.to_string()
 }
 
+/// Fractions of the ceiling sweeps ([`rule_sweep`], [`fused_sweep`]): 0.05 to 0.95 by 0.01.
+pub fn sweep_fractions() -> impl Iterator<Item = f64> + Clone {
+    (5..=95).map(|i| f64::from(i) / 100.0)
+}
+/// Peak windows of the ceiling sweeps, seconds (0.3 s steps of the pick grid, halved).
+pub const SWEEP_WINDOWS_S: [f64; 7] = [0.3, 0.45, 0.6, 0.75, 0.9, 1.05, 1.2];
+
+/// The rule at every fraction of [`sweep_fractions`] and window of [`SWEEP_WINDOWS_S`], each
+/// scored on all of `runs`: its name and its curve point (the fraction as the threshold, the
+/// window in frames as `raise_after`). For [`crate::product::frontier_300ms`]: what the best
+/// rule for these very runs reaches.
+pub fn rule_sweep(runs: &[LoadRun]) -> Vec<(String, CurvePoint)> {
+    let Some(step_ms) = runs.first().map(|r| r.step_ms) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for &w in &SWEEP_WINDOWS_S {
+        for f in sweep_fractions() {
+            let r = rule(f, w, step_ms);
+            let grasps: Vec<ArmedGrasp> = runs.iter().map(|x| x.grasp(&r)).collect();
+            out.push((
+                format!("load < {f:.2}·peak over {} frames", r.window),
+                CurvePoint::of(f, r.window, &grasps),
+            ));
+        }
+    }
+    out
+}
+
+/// Strict fractions of the fused ceiling sweep: 0 (the rule never flags alone) and 0.05–0.60
+/// by 0.05.
+pub fn sweep_stricts() -> Vec<f64> {
+    (0..=12).map(|i| f64::from(i) * 0.05).collect()
+}
+/// Guard fractions of the fused ceiling sweep: 0.30–1.00 by 0.05 (1 = no guard).
+pub fn sweep_guards() -> Vec<f64> {
+    (6..=20).map(|i| f64::from(i) * 0.05).collect()
+}
+
+/// The fused decision (rule OR (model flag AND load under the guard)) over `stricts` ×
+/// `guards` × the windows of [`SWEEP_WINDOWS_S`], with the model's hand flags as given
+/// (`pairs`), each scored on all of `pairs`: its name and its point.
+pub fn fused_sweep(
+    pairs: &[(&LoadRun, &[bool])],
+    stricts: &[f64],
+    guards: &[f64],
+) -> Vec<(String, CurvePoint)> {
+    let Some(step_ms) = pairs.first().map(|p| p.0.step_ms) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for &w in &SWEEP_WINDOWS_S {
+        for &st in stricts {
+            for &g in guards {
+                let f = fused(st, g, w, step_ms);
+                let grasps: Vec<ArmedGrasp> =
+                    pairs.iter().map(|(r, m)| r.fused_grasp(m, &f)).collect();
+                out.push((fused_name(&f), CurvePoint::of(st, f.strict.window, &grasps)));
+            }
+        }
+    }
+    out
+}
+
 /// The hand-load rule beside a model: held out as the model is ([`beside_model`]).
 #[derive(Debug, Clone)]
 pub struct RuleEval {

@@ -417,6 +417,30 @@ impl CurvePoint {
     }
 }
 
+/// The frontier of `curve` for a grip controller's two numbers: for each count `k` of failures
+/// warned at least 300 ms ahead (from 1 to the most any point reaches), the index of the point
+/// with at least `k` and the fewest false-alarm grasps (ties: more failures detected, then the
+/// longer median lead, then the first in curve order). Picked on the grasps it scores, so an
+/// upper bound on what any decision of the swept family, picked elsewhere, reaches on them.
+pub fn frontier_300ms(curve: &[CurvePoint]) -> Vec<(usize, usize)> {
+    let most = curve.iter().map(|p| p.detected_300ms).max().unwrap_or(0);
+    (1..=most)
+        .filter_map(|k| {
+            curve
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| p.detected_300ms >= k)
+                .min_by(|(_, a), (_, b)| {
+                    a.false_alarm_grasps
+                        .cmp(&b.false_alarm_grasps)
+                        .then(b.detected_rate.total_cmp(&a.detected_rate))
+                        .then(b.lead_median_ms.total_cmp(&a.lead_median_ms))
+                })
+                .map(|(i, _)| (k, i))
+        })
+        .collect()
+}
+
 /// A scored run kept for decision sweeps: the run and its armed window.
 #[derive(Debug, Clone)]
 pub struct WindowedRun {
@@ -635,6 +659,37 @@ pub fn sequences_from_contact(trials: &[Trial]) -> Vec<crate::evaluation::Sequen
 mod tests {
     use super::*;
     use slipguard_data::trial::Unit;
+
+    fn point(d300: usize, fa: usize, det: usize, lead: f64) -> CurvePoint {
+        CurvePoint {
+            threshold: 0.5,
+            raise_after: 1,
+            detected_rate: det as f64 / 7.0,
+            false_alarm_grasp_rate: fa as f64 / 16.0,
+            lead_median_ms: lead,
+            detected_300ms: d300,
+            failures: 7,
+            false_alarm_grasps: fa,
+            successes: 16,
+        }
+    }
+
+    #[test]
+    fn the_frontier_takes_the_fewest_false_alarms_at_each_count_of_early_warnings() {
+        let curve = [
+            point(6, 4, 7, 900.0), // 0
+            point(4, 1, 7, 400.0), // 1
+            point(6, 3, 6, 700.0), // 2
+            point(2, 0, 3, 800.0), // 3
+            point(5, 3, 7, 650.0), // 4: ties 2 at k = 5 on false alarms, detects more
+            point(6, 3, 6, 800.0), // 5: ties 2 at k = 6 on both, longer lead
+        ];
+        let f = frontier_300ms(&curve);
+        // k = 1, 2: point 3 (0 false alarms); 3, 4: point 1; 5: point 4 (3, more detected);
+        // 6: point 5 (3, the longer lead); nothing reaches 7.
+        assert_eq!(f, vec![(1, 3), (2, 3), (3, 1), (4, 1), (5, 4), (6, 5)]);
+        assert!(frontier_300ms(&[]).is_empty());
+    }
 
     fn trial(id: &str, outcome: Outcome, lift: Option<usize>, drop: Option<usize>) -> Trial {
         let mut t = Trial::new(id, Unit::MilliNewton, 16.7, vec![vec![1000.0; 40]]);
