@@ -1,12 +1,12 @@
 //! Closed-loop grasp simulation: the physics drops the light grasps, a perfect predictor with
 //! the firmware's latency saves most of them, the latency is what it should be, the minimum
 //! grip is a real boundary, and the firmware path (golden model, bad blob) is wired in.
-use slipguard::closed_loop::{
+use slipguard::replay::golden_model_path;
+use slipguard_core::units::Millihertz;
+use slipguard_learn::closed_loop::{
     ControllerConfig, FLAG_FRAME_S, FlagSource, INFERENCE_S, Latency, Scenario, Situation,
     T_LIFT_S, min_grip_needed, run_trial,
 };
-use slipguard::replay::golden_model_path;
-use slipguard_core::units::Millihertz;
 
 const CTL: ControllerConfig = ControllerConfig {
     step_fraction: 0.2,
@@ -62,7 +62,7 @@ fn hold_off_spaces_the_raises() {
             ..CTL
         };
         let held = run_trial(&sc, src, &held_ctl, None, 1);
-        let gaps = |o: &slipguard::closed_loop::Outcome| -> Vec<f64> {
+        let gaps = |o: &slipguard_learn::closed_loop::Outcome| -> Vec<f64> {
             o.raise_times.windows(2).map(|w| w[1] - w[0]).collect()
         };
         close += gaps(&free).iter().filter(|&&g| g < 0.1).count();
@@ -94,13 +94,13 @@ fn reaction_comes_one_frame_after_the_slip() {
         // The slip time of the uncontrolled run equals the controlled one's until the first
         // raise: the oracle sees it at the next frame boundary, the controller one period
         // (+ 0.61 ms transmission, + 1 ms tick) later.
-        let mut c = slipguard::closed_loop::Contact::default();
+        let mut c = slipguard_learn::closed_loop::Contact::default();
         let mut grip = 0.0;
         let mut t_slip = None;
         for k in 0..8000 {
             let t = k as f64 / 1000.0;
-            if t >= slipguard::closed_loop::T_CONTACT_S {
-                grip += (0.001 / (slipguard::closed_loop::ACTUATOR_TAU_S + 0.001))
+            if t >= slipguard_learn::closed_loop::T_CONTACT_S {
+                grip += (0.001 / (slipguard_learn::closed_loop::ACTUATOR_TAU_S + 0.001))
                     * (sc.initial_grip_n - grip);
             }
             sc.tick(&mut c, t, grip);
@@ -178,7 +178,7 @@ fn firmware_in_the_loop() {
         "unstable frames {}",
         o.unstable_frames
     );
-    assert_eq!(o.final_grip_n, slipguard::closed_loop::MAX_GRIP_N);
+    assert_eq!(o.final_grip_n, slipguard_learn::closed_loop::MAX_GRIP_N);
     // A corrupted blob: fault frames only, no grip change (the controller keeps its policy).
     let mut b = std::fs::read(golden_model_path()).unwrap();
     b[5000] ^= 0x10;
@@ -206,7 +206,7 @@ fn recorded_frames_match_the_pad_physics() {
     let sc = Scenario::draw(5, 1, Situation::SuddenWeight);
     let o = run_trial(&sc, FlagSource::Off, &CTL, None, 1);
     let period = 1.0 / 16.7;
-    assert!((o.frames[0].t - slipguard::closed_loop::T_CONTACT_S).abs() <= period);
+    assert!((o.frames[0].t - slipguard_learn::closed_loop::T_CONTACT_S).abs() <= period);
     assert!((126..=129).contains(&o.frames.len()), "{}", o.frames.len());
     let ch = sc.p.contacts[0];
     let grip_mn = 1000.0 * sc.initial_grip_n * sc.p.gains[ch];
@@ -259,8 +259,8 @@ fn teacher_false_alarms_raise_the_grip_without_slip() {
 
 #[test]
 fn training_sequences_with_a_policy_in_the_loop() {
-    use slipguard::closed_loop::{TrainingConfig, training_sequences};
     use slipguard_data::trial::{Outcome, Stability};
+    use slipguard_learn::closed_loop::{TrainingConfig, training_sequences};
     // The untrained golden model (p ≈ 0.55 everywhere, above any policy threshold drawn) in the
     // loop: the controller raises the grip on every frame from grasp start, so nothing drops
     // (with the teacher, some of these light grips do) and the physics labels end stable.
@@ -286,9 +286,9 @@ fn training_sequences_with_a_policy_in_the_loop() {
 
 #[test]
 fn training_sequences_are_labelled_by_the_physics() {
-    use slipguard::closed_loop::training_sequences;
     use slipguard_data::trial::{Outcome, Stability};
-    let cfg = slipguard::closed_loop::TrainingConfig::default();
+    use slipguard_learn::closed_loop::training_sequences;
+    let cfg = slipguard_learn::closed_loop::TrainingConfig::default();
     let seqs = training_sequences(900, 8, &cfg);
     // Same seed, same sequences.
     assert_eq!(seqs.len(), training_sequences(900, 8, &cfg).len());

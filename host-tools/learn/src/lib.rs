@@ -3,13 +3,16 @@
 //! checkpoints in safetensors ([`checkpoint`]), the paper's Table I baselines
 //! ([`baselines`]), the hand-load rule every hand flag is measured against ([`load_rule`]) and
 //! the evaluation of float and quantized models ([`evaluation`]); the training sets built from
-//! recorded and simulated trials ([`training_data`]).
+//! recorded and simulated trials ([`training_data`]), and the simulated closed loop that both
+//! scores a flag source and generates training sequences from the firmware's own path
+//! ([`closed_loop`]).
 //!
 //! Errors are [`error::LearnError`] (candle's and the data layer's wrapped).
 
 #[cfg(feature = "train")]
 pub mod baselines;
 pub mod checkpoint;
+pub mod closed_loop;
 pub mod error;
 pub mod evaluation;
 pub mod load_rule;

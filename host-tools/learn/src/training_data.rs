@@ -3,7 +3,7 @@
 //! validation split; the calibration inputs of the quantizer; the whole recordings the
 //! quantization-aware fine-tuning checks its blob against. `slipguard train` draws on these
 //! (the closed-loop simulator's own training sequences come from
-//! `slipguard::closed_loop::training_sequences`).
+//! `slipguard_learn::closed_loop::training_sequences`).
 
 use slipguard_data::Trial;
 use slipguard_data::labels::{ChannelSequence, LabelConfig};

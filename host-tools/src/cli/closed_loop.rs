@@ -8,11 +8,11 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::Parser;
 use plotters::prelude::*;
-use slipguard::closed_loop::{
+use slipguard::replay::{default_models, shipped_blobs};
+use slipguard_learn::closed_loop::{
     ControllerConfig, FlagSource, INFERENCE_S, Latency, Outcome, Scenario, Situation,
     min_grip_needed, run_trial, summarise,
 };
-use slipguard::replay::{default_models, shipped_blobs};
 
 use super::check;
 use slipguard_app::profile::Profile;
@@ -447,7 +447,7 @@ fn plot(
             .margin(8)
             .x_label_area_size(30)
             .y_label_area_size(50)
-            .build_cartesian_2d(0f64..slipguard::closed_loop::DURATION_S, 0f64..ymax)
+            .build_cartesian_2d(0f64..slipguard_learn::closed_loop::DURATION_S, 0f64..ymax)
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         chart
             .configure_mesh()
@@ -468,7 +468,10 @@ fn plot(
         let grey = RGBColor(128, 128, 128);
         chart
             .draw_series(DashedLineSeries::new(
-                [(0.0, min[k]), (slipguard::closed_loop::DURATION_S, min[k])],
+                [
+                    (0.0, min[k]),
+                    (slipguard_learn::closed_loop::DURATION_S, min[k]),
+                ],
                 6,
                 4,
                 grey.stroke_width(1),

@@ -6,7 +6,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use slipguard::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
 use slipguard_core::blob::Variant;
 use slipguard_core::decision::{ContactConfig, DecisionConfig, Q15};
 use slipguard_core::float::FloatModel;
@@ -14,6 +13,7 @@ use slipguard_core::sample::PAPER_RATE_HZ;
 use slipguard_data::Trial;
 use slipguard_data::labels::{ChannelSequence, LabelConfig};
 use slipguard_learn::checkpoint::{self, Checkpoint};
+use slipguard_learn::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
 use slipguard_learn::evaluation::{
     self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
     set_decision, tune_decision, with_quantized_model,
@@ -100,7 +100,7 @@ pub struct Args {
     #[arg(long, allow_negative_numbers = true, default_value_t = 11)]
     pub sim_seed: u64,
     /// Simulated closed-loop trials (the four DoraHand situations, labelled with the true slip
-    /// state, `slipguard::closed_loop::training_sequences`) added to the pre-training.
+    /// state, `slipguard_learn::closed_loop::training_sequences`) added to the pre-training.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub closed_loop_pretrain: usize,
     /// Simulated closed-loop trials mixed into the (fine-)tuning set (split by trial for early

@@ -25,7 +25,7 @@ use slipguard_core::decision::Q15;
 use slipguard_core::protocol::{self, Command, Deframer, Frame, MAX_WIRE, Message, status};
 use slipguard_core::sample::PAPER_RATE_MHZ;
 
-use slipguard_learn::evaluation::Sequence;
+use crate::evaluation::Sequence;
 pub use slipguard_sim::force::Contact;
 use slipguard_sim::force::{ForceParams, ForceSimConfig, INTERNAL_HZ, Intent, RHO_STICK_SLIP};
 use slipguard_sim::{normal, trial_rng, uniform};
