@@ -12,6 +12,7 @@ use slipguard_app::profile::ProfileId;
 use slipguard_core::blob::InputUnit;
 use slipguard_core::decision::{DecisionConfig, Q15};
 use slipguard_core::sample::{PAPER_RATE_HZ, PAPER_RATE_MHZ};
+use slipguard_core::units::Millihertz;
 use slipguard_learn::checkpoint::Checkpoint;
 use slipguard_learn::evaluation::{
     Kind, Row, Sequence, TABLE_HEADER, decide, metrics_of, probabilities, quantize_model,
@@ -177,9 +178,42 @@ pub fn heldout_lines(g: &Group) -> Vec<String> {
         .collect()
 }
 
+/// `slipguard eval`: the decision overrides, the data sets, every model on them, then the
+/// report (stdout and `--markdown`), the operating-curve plots and the JSON.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let mut groups = resolve(&a.models, a.allow_bad_model, &mut |w| eprintln!("{w}"))?;
-    for g in &mut groups {
+    apply_overrides(&mut groups, &a);
+    let data = DataSets::load(&a, &groups)?;
+    for e in &data.skipped {
+        eprintln!("eval: skipped {e}");
+    }
+    let (rows, notes, products) = evaluate(&groups, &data, &a)?;
+    for p in products.iter().filter(|p| p.in_sample) {
+        eprintln!(
+            "note: {} is evaluated on real trials it was trained on (in-sample); its held-out figures come from `slipguard train --cv 5` or a folder of fold checkpoints",
+            p.name
+        );
+    }
+    let text = report_text(&products, &rows, &notes, &data.skipped);
+    print!("{text}");
+    if let Some(p) = &a.markdown {
+        std::fs::write(p, &text).with_context(|| format!("writing {}", p.display()))?;
+    }
+    if let Some(d) = &a.plots {
+        plot_curves(d, &products)?;
+        eprintln!("plots in {}", d.display());
+    }
+    if let Some(path) = &a.json {
+        write_json(path, &products, &rows, &data.skipped)?;
+        eprintln!("figures in {}", path.display());
+    }
+    Ok(())
+}
+
+/// `--threshold`, `--raise-after`, `--clear-after` on every model; a member whose decision
+/// changed loses its shipped blob (it carries the old decision) and is quantized afresh.
+fn apply_overrides(groups: &mut [Group], a: &Args) {
+    for g in groups {
         for (ck, blob) in &mut g.members {
             let c = &mut ck.model.config;
             let before = (c.threshold_q15, c.raise_after, c.clear_after);
@@ -193,176 +227,205 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 c.clear_after = r.max(1);
             }
             if before != (c.threshold_q15, c.raise_after, c.clear_after) {
-                // The shipped blob carries the old rule: re-quantize with the new one.
                 *blob = None;
             }
         }
     }
-    let real_trials: Vec<Trial> = if a.no_real {
-        Vec::new()
-    } else {
-        load_real_trials(a.data.as_deref())?.1
-    };
-    // The recordings' rate and unit (one per data set, the loader checks) decide which models
-    // they evaluate; a model at another rate or unit is refused for a --data folder.
-    let data_key = real_trials
-        .first()
-        .map(|t| {
-            let profile = slipguard::replay::profile_for(t, &t.id)?;
-            anyhow::Ok((t.rate_mhz(), profile.unit, profile.id))
-        })
-        .transpose()?;
-    let fits_data = |g: &Group| {
-        data_key.is_some_and(|(r, u, _)| {
-            g.members
-                .iter()
-                .all(|(c, _)| c.model.config.sample_rate_mhz == r && c.model.config.input_unit == u)
-        })
-    };
-    if let (Some(d), Some((r, u, _))) = (&a.data, data_key)
-        && let Some(g) = groups.iter().find(|g| !fits_data(g))
-    {
-        let c = &g.members[0].0.model.config;
-        anyhow::bail!(
-            "{}: a {} Hz model in {}, but {} holds {} Hz recordings in {u}: evaluate it on recordings at its rate and unit",
-            g.name,
-            c.sample_rate_mhz.hz(),
-            c.input_unit,
-            d.display(),
-            r.hz()
-        );
-    }
-    let data_rate_mhz = data_key.map_or(PAPER_RATE_MHZ, |k| k.0);
-    // The paper's metrics on the sequences the firmware's model state sees: from each
-    // channel's contact onset (the data's sensor and rate).
-    let force_rule = OnsetRule::of(&slipguard_learn::evaluation::force_config(
-        slipguard_core::blob::Variant::Lstm,
-        false,
-        1,
-        "",
-        PAPER_RATE_MHZ,
-    ));
-    let data_rule = match data_key.map(|k| k.2) {
-        Some(ProfileId::Suction) => OnsetRule::of(&slipguard_learn::evaluation::suction_config(
-            slipguard_core::blob::Variant::Lstm,
-            false,
-            1,
-            "",
-        )),
-        Some(ProfileId::Hand) | None => OnsetRule::of(&slipguard_learn::evaluation::force_config(
-            slipguard_core::blob::Variant::Lstm,
-            false,
-            1,
-            "",
-            data_rate_mhz,
-        )),
-    };
-    let data_label = LabelConfig::default().scaled_to(data_rate_mhz.hz_f32());
-    let real = product::cut_to_contact(sequences_of(&real_trials, &data_label), &data_rule);
-    let needs = |u: InputUnit| {
-        groups.iter().any(|g| {
-            g.members
-                .iter()
-                .any(|(c, _)| c.model.config.input_unit == u)
-        })
-    };
-    let sim_f = if needs(InputUnit::MilliNewton) {
-        product::cut_to_contact(
-            sim_force_sequences(a.sim_seed, a.sim_force, 0.3, PAPER_RATE_HZ),
-            &force_rule,
-        )
-    } else {
-        Vec::new()
-    };
-    let sim_s = if needs(InputUnit::Counts) {
-        let rule = OnsetRule::of(&slipguard_learn::evaluation::suction_config(
+}
+
+/// The data every model is evaluated on.
+struct DataSets {
+    /// The recordings' rate, unit and profile (one per data set; the loader checks), `None`
+    /// without real trials.
+    key: Option<(Millihertz, InputUnit, ProfileId)>,
+    /// The real trials' labelled sequences from each channel's contact onset.
+    real: Vec<Sequence>,
+    /// Simulated force sequences (only when a force model is evaluated).
+    sim_force: Vec<Sequence>,
+    /// Simulated suction sequences (only when a suction model is evaluated).
+    sim_suction: Vec<Sequence>,
+    /// Suction calibration inputs for suction models without a blob.
+    calib_suction: Vec<Sequence>,
+    /// The real trials the armed window scores.
+    scored: Vec<Trial>,
+    /// The ones it cannot (a failure with no drop in its force; no lift mark while others
+    /// have one): skipped and named, not refusing the data set.
+    skipped: Vec<product::ArmedError>,
+}
+
+impl DataSets {
+    /// Loads the real trials (unless `--no-real`), refuses a `--data` folder at another rate
+    /// or unit than a model's, and draws the simulated sets the models' units need.
+    fn load(a: &Args, groups: &[Group]) -> anyhow::Result<Self> {
+        let real_trials: Vec<Trial> = if a.no_real {
+            Vec::new()
+        } else {
+            load_real_trials(a.data.as_deref())?.1
+        };
+        let key = real_trials
+            .first()
+            .map(|t| {
+                let profile = slipguard::replay::profile_for(t, &t.id)?;
+                anyhow::Ok((t.rate_mhz(), profile.unit, profile.id))
+            })
+            .transpose()?;
+        if let (Some(d), Some((r, u, _))) = (&a.data, key)
+            && let Some(g) = groups.iter().find(|g| !fits(key, g))
+        {
+            let c = &g.members[0].0.model.config;
+            anyhow::bail!(
+                "{}: a {} Hz model in {}, but {} holds {} Hz recordings in {u}: evaluate it on recordings at its rate and unit",
+                g.name,
+                c.sample_rate_mhz.hz(),
+                c.input_unit,
+                d.display(),
+                r.hz()
+            );
+        }
+        let data_rate_mhz = key.map_or(PAPER_RATE_MHZ, |k| k.0);
+        // The paper's metrics on the sequences the firmware's model state sees: from each
+        // channel's contact onset (the data's sensor and rate).
+        let suction_rule = OnsetRule::of(&slipguard_learn::evaluation::suction_config(
             slipguard_core::blob::Variant::Lstm,
             false,
             1,
             "",
         ));
-        product::cut_to_contact(sim_suction_sequences(a.sim_seed, a.sim_suction, 0.3), &rule)
-    } else {
-        Vec::new()
-    };
-    // Trials the armed window cannot score (a failure with no drop in its force; no lift mark
-    // while others have one) are skipped and named, not refusing the data set.
-    let (scored_trials, skipped) = {
+        let force_rule = |rate| {
+            OnsetRule::of(&slipguard_learn::evaluation::force_config(
+                slipguard_core::blob::Variant::Lstm,
+                false,
+                1,
+                "",
+                rate,
+            ))
+        };
+        let data_rule = match key.map(|k| k.2) {
+            Some(ProfileId::Suction) => suction_rule,
+            Some(ProfileId::Hand) | None => force_rule(data_rate_mhz),
+        };
+        let data_label = LabelConfig::default().scaled_to(data_rate_mhz.hz_f32());
+        let real = product::cut_to_contact(sequences_of(&real_trials, &data_label), &data_rule);
+        let needs = |u: InputUnit| {
+            groups.iter().any(|g| {
+                g.members
+                    .iter()
+                    .any(|(c, _)| c.model.config.input_unit == u)
+            })
+        };
+        let sim_force = if needs(InputUnit::MilliNewton) {
+            product::cut_to_contact(
+                sim_force_sequences(a.sim_seed, a.sim_force, 0.3, PAPER_RATE_HZ),
+                &force_rule(PAPER_RATE_MHZ),
+            )
+        } else {
+            Vec::new()
+        };
+        let sim_suction = if needs(InputUnit::Counts) {
+            product::cut_to_contact(
+                sim_suction_sequences(a.sim_seed, a.sim_suction, 0.3),
+                &suction_rule,
+            )
+        } else {
+            Vec::new()
+        };
         let refs: Vec<&Trial> = real_trials.iter().collect();
         let (keep, skipped) = product::scoreable(&refs, &LabelConfig::default())?;
-        let keep: Vec<Trial> = keep.into_iter().cloned().collect();
-        (keep, skipped)
-    };
-    for e in &skipped {
-        eprintln!("eval: skipped {e}");
+        let scored: Vec<Trial> = keep.into_iter().cloned().collect();
+        Ok(DataSets {
+            key,
+            real,
+            sim_force,
+            sim_suction,
+            calib_suction: sim_suction_sequences(999, 16, 0.3),
+            scored,
+            skipped,
+        })
     }
-    let calib_suction = sim_suction_sequences(999, 16, 0.3);
+
+    /// Calibration inputs of a checkpoint without a blob: up to 64 real sequences outside its
+    /// held-out trials.
+    fn real_calib(&self, ck: &Checkpoint) -> Vec<Vec<f32>> {
+        let h = ck.heldout_trials().unwrap_or_default();
+        self.real
+            .iter()
+            .filter(|s| !h.contains(&s.cs.trial_id))
+            .take(64)
+            .map(|s| s.cs.samples.clone())
+            .collect()
+    }
+}
+
+/// Whether every member of `g` is at the real data's rate and unit (`key`).
+fn fits(key: Option<(Millihertz, InputUnit, ProfileId)>, g: &Group) -> bool {
+    key.is_some_and(|(r, u, _)| {
+        g.members
+            .iter()
+            .all(|(c, _)| c.model.config.sample_rate_mhz == r && c.model.config.input_unit == u)
+    })
+}
+
+/// Every model on the data sets it fits: the paper's rows (float and quantized), the held-out
+/// lines of CV groups, and the armed-window products on the real trials.
+fn evaluate(
+    groups: &[Group],
+    data: &DataSets,
+    a: &Args,
+) -> anyhow::Result<(Vec<Row>, Vec<String>, Vec<Product>)> {
     let plots = a.plots.as_deref().map(|d| (d, a.plot_count));
     let kinds = [Kind::Float, Kind::Quantized];
     let mut rows = Vec::new();
     let mut notes = Vec::new();
     let mut products: Vec<Product> = Vec::new();
-    for g in &groups {
+    let real_calib = |ck: &Checkpoint| data.real_calib(ck);
+    for g in groups {
         let unit = g.members[0].0.model.config.input_unit;
-        if !real.is_empty() && fits_data(g) {
+        if !data.real.is_empty() && fits(data.key, g) {
             let cv = g.members.iter().all(|(c, _)| c.heldout_trials().is_some());
             let name = if cv { "real held-out" } else { "real (all)" };
-            let calib = |ck: &Checkpoint| -> Vec<Vec<f32>> {
-                let h = ck.heldout_trials().unwrap_or_default();
-                real.iter()
-                    .filter(|s| !h.contains(&s.cs.trial_id))
-                    .take(64)
-                    .map(|s| s.cs.samples.clone())
-                    .collect()
-            };
             rows.extend(eval_group(
                 g,
                 name,
-                &real,
+                &data.real,
                 |ck, s| {
                     ck.heldout_trials()
                         .is_none_or(|h| h.contains(&s.cs.trial_id))
                 },
-                calib,
+                real_calib,
                 plots,
                 &kinds,
             )?);
             notes.extend(heldout_lines(g));
-            products.push(product_eval(g, &scored_trials, &real, &calib, cv)?);
+            products.push(product_eval(g, &data.scored, &data.real, &real_calib, cv)?);
         }
         if unit == InputUnit::MilliNewton {
-            if !sim_f.is_empty() {
+            if !data.sim_force.is_empty() {
                 // CV groups: fold 0 stands for the recipe on simulated data.
                 let g0 = Group {
                     name: g.name.clone(),
                     members: vec![g.members[0].clone()],
                 };
-                let calib = |ck: &Checkpoint| -> Vec<Vec<f32>> {
-                    let h = ck.heldout_trials().unwrap_or_default();
-                    real.iter()
-                        .filter(|s| !h.contains(&s.cs.trial_id))
-                        .take(64)
-                        .map(|s| s.cs.samples.clone())
-                        .collect()
-                };
                 rows.extend(eval_group(
                     &g0,
                     &format!("sim force seed {}", a.sim_seed),
-                    &sim_f,
+                    &data.sim_force,
                     |_, _| true,
-                    calib,
+                    real_calib,
                     plots,
                     &kinds,
                 )?);
             }
-        } else if !sim_s.is_empty() {
+        } else if !data.sim_suction.is_empty() {
             let calib = |_: &Checkpoint| -> Vec<Vec<f32>> {
-                calib_suction.iter().map(|s| s.cs.samples.clone()).collect()
+                data.calib_suction
+                    .iter()
+                    .map(|s| s.cs.samples.clone())
+                    .collect()
             };
             rows.extend(eval_group(
                 g,
                 &format!("sim suction 71 Hz seed {}", a.sim_seed),
-                &sim_s,
+                &data.sim_suction,
                 |_, _| true,
                 calib,
                 plots,
@@ -370,22 +433,33 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             )?);
         }
     }
+    Ok((rows, notes, products))
+}
+
+/// The report: the armed-window table with its notes (the rule, the fused decisions, the
+/// skipped trials), then the paper's table and the held-out trials per fold.
+fn report_text(
+    products: &[Product],
+    rows: &[Row],
+    notes: &[String],
+    skipped: &[product::ArmedError],
+) -> String {
     let mut text = String::new();
     if !products.is_empty() {
         text.push_str(ARMED_HEADER);
         text.push('\n');
-        for p in &products {
+        for p in products {
             text.push_str(&armed_row(p));
             text.push('\n');
         }
         text.push_str(ARMED_NOTE);
         text.push_str(RULE_NOTE);
-        for p in &products {
+        for p in products {
             if let Some(f) = &p.hand_rule {
                 text.push_str(&format!("\n\n{}", fused_note(&p.name, f)));
             }
         }
-        for p in &products {
+        for p in products {
             if let Some(r) = &p.rule {
                 text.push_str(&format!(
                     "\n\n{}: load rule picked {}: {}.",
@@ -395,23 +469,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         if !skipped.is_empty() {
             text.push_str("\n\nSkipped (not scored in the armed window):\n");
-            for e in &skipped {
+            for e in skipped {
                 text.push_str(&format!("\n- {e}"));
             }
         }
         text.push_str("\n\nThe paper's metrics (per channel, from each channel's contact onset to the end of the 160-step window):\n\n");
     }
-    for p in &products {
-        if p.in_sample {
-            eprintln!(
-                "note: {} is evaluated on real trials it was trained on (in-sample); its held-out figures come from `slipguard train --cv 5` or a folder of fold checkpoints",
-                p.name
-            );
-        }
-    }
     text.push_str(TABLE_HEADER);
     text.push('\n');
-    for r in &rows {
+    for r in rows {
         text.push_str(&row_markdown(r));
         text.push('\n');
     }
@@ -421,72 +487,76 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             text.push_str(&format!("- {n}\n"));
         }
     }
-    print!("{text}");
-    if let Some(p) = &a.markdown {
-        std::fs::write(p, &text).with_context(|| format!("writing {}", p.display()))?;
-    }
-    if let Some(d) = &a.plots {
-        for p in &products {
-            let slug: String = p
-                .name
-                .chars()
-                .map(|c| {
-                    if c.is_ascii_alphanumeric() || c == '-' {
-                        c
-                    } else {
-                        '_'
-                    }
-                })
-                .collect();
-            let path = d.join(format!("operating-curve-{slug}.png"));
-            slipguard::plot::plot_operating_curve_with_rule(
-                &p.curve,
-                p.shipped.as_ref(),
-                p.rule.as_ref().map(|r| (r.curve.as_slice(), &r.point)),
-                &format!(
-                    "{}: hand level, armed window, {} grasps",
-                    p.name, p.hand.metrics.grasps
-                ),
-                &path,
-            )?;
-        }
-        eprintln!("plots in {}", d.display());
-    }
-    if let Some(path) = &a.json {
-        let objs: Vec<serde_json::Value> = products
-            .iter()
-            .map(|p| {
-                let q = rows.iter().find(|r| {
-                    r.model == p.name && r.kind == Kind::Quantized && r.data.starts_with("real")
-                });
-                let mut v = product_json(p, q);
-                if let Some(o) = v.as_object_mut() {
-                    o.insert(
-                        "skipped".into(),
-                        serde_json::json!(
-                            skipped
-                                .iter()
-                                .map(|e| serde_json::json!({
-                                    "trial": skipped_trial(e),
-                                    "reason": e.to_string(),
-                                }))
-                                .collect::<Vec<_>>()
-                        ),
-                    );
+    text
+}
+
+/// `--plots`: each product's operating curve with the rule beside it.
+fn plot_curves(d: &Path, products: &[Product]) -> anyhow::Result<()> {
+    for p in products {
+        let slug: String = p
+            .name
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '-' {
+                    c
+                } else {
+                    '_'
                 }
-                v
             })
             .collect();
-        let v = if objs.len() == 1 {
-            objs.into_iter().next().unwrap_or_default()
-        } else {
-            serde_json::Value::Array(objs)
-        };
-        let text = serde_json::to_string_pretty(&v).context("encoding the figures as JSON")?;
-        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("figures in {}", path.display());
+        let path = d.join(format!("operating-curve-{slug}.png"));
+        slipguard::plot::plot_operating_curve_with_rule(
+            &p.curve,
+            p.shipped.as_ref(),
+            p.rule.as_ref().map(|r| (r.curve.as_slice(), &r.point)),
+            &format!(
+                "{}: hand level, armed window, {} grasps",
+                p.name, p.hand.metrics.grasps
+            ),
+            &path,
+        )?;
     }
     Ok(())
+}
+
+/// `--json`: one object per product (an array for several) with the skipped trials.
+fn write_json(
+    path: &Path,
+    products: &[Product],
+    rows: &[Row],
+    skipped: &[product::ArmedError],
+) -> anyhow::Result<()> {
+    let objs: Vec<serde_json::Value> = products
+        .iter()
+        .map(|p| {
+            let q = rows.iter().find(|r| {
+                r.model == p.name && r.kind == Kind::Quantized && r.data.starts_with("real")
+            });
+            let mut v = product_json(p, q);
+            if let Some(o) = v.as_object_mut() {
+                o.insert(
+                    "skipped".into(),
+                    serde_json::json!(
+                        skipped
+                            .iter()
+                            .map(|e| serde_json::json!({
+                                "trial": skipped_trial(e),
+                                "reason": e.to_string(),
+                            }))
+                            .collect::<Vec<_>>()
+                    ),
+                );
+            }
+            v
+        })
+        .collect();
+    let v = if objs.len() == 1 {
+        objs.into_iter().next().unwrap_or_default()
+    } else {
+        serde_json::Value::Array(objs)
+    };
+    let text = serde_json::to_string_pretty(&v).context("encoding the figures as JSON")?;
+    std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))
 }
 
 /// The trial an armed-window error names.
