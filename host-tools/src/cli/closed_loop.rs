@@ -118,6 +118,28 @@ struct Source {
     )>,
 }
 
+impl Source {
+    /// What the loop runs for this source.
+    fn flag_source(&self) -> FlagSource<'_> {
+        match (&self.blob, self.oracle, self.rule, self.fused) {
+            (Some(b), _, Some((_, scale, contact)), Some(fused)) => FlagSource::Fused {
+                blob: b.as_bytes(),
+                fused,
+                scale,
+                contact,
+            },
+            (Some(b), _, _, _) => FlagSource::Model(b.as_bytes()),
+            (None, Some(delay_frames), _, _) => FlagSource::Oracle { delay_frames },
+            (None, None, Some((rule, scale, contact)), _) => FlagSource::LoadRule {
+                rule,
+                scale,
+                contact,
+            },
+            _ => FlagSource::Off,
+        }
+    }
+}
+
 /// Every scenario in the loop, in parallel on `pool`, the outcomes in the scenarios' order.
 /// Scenario i's sensor-noise seed is `seed ^ (i mod ⌈n/2⌉)`: fixed per scenario whatever the
 /// thread count (the split of the scenarios over two threads the published reports ran with).
@@ -139,6 +161,8 @@ fn run_all(
     })
 }
 
+/// `slipguard closed-loop`: the flag sources, the controller, then per situation every source
+/// on the same scenarios (a table row each, and a plot with `--out`).
 pub fn run(a: Args) -> anyhow::Result<()> {
     let threads = a
         .threads
@@ -147,6 +171,46 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .num_threads(threads)
         .build()
         .context("starting the worker threads")?;
+    let (sources, rates) = flag_sources(&a)?;
+    let (ctl, decision) = controller(&a)?;
+    let mut md = header(&a, &rates, decision);
+    for sit in Situation::ALL {
+        let scenarios: Vec<Scenario> = (0..a.trials as u64)
+            .map(|i| Scenario::draw(a.seed, i, sit))
+            .collect();
+        let min: Vec<f64> = scenarios.iter().map(|s| min_grip_needed(s, &ctl)).collect();
+        let results: Vec<(String, Vec<Outcome>)> = sources
+            .iter()
+            .map(|s| {
+                let ctl = ControllerConfig {
+                    rate_mhz: s.rate_mhz,
+                    ..ctl
+                };
+                (
+                    s.name.clone(),
+                    run_all(&scenarios, s.flag_source(), &ctl, a.seed, &pool),
+                )
+            })
+            .collect();
+        situation_rows(&mut md, sit, &results, &min);
+        if let Some(dir) = &a.out {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+            let png = dir.join(format!("closed-loop-{}.png", sit.name()));
+            plot(&scenarios, &results, &min, sit, &png)?;
+        }
+        eprintln!("closed-loop: {} done", sit.name());
+    }
+    print!("{md}");
+    if let Some(dir) = &a.out {
+        let p = dir.join("closed-loop.md");
+        std::fs::write(&p, &md).with_context(|| format!("writing {}", p.display()))?;
+    }
+    Ok(())
+}
+
+/// The flag sources in the report's order: off, each model (and its host-fused copy with
+/// `--fused-guard`), the load rule at each model rate, the oracles; and the model rates.
+fn flag_sources(a: &Args) -> anyhow::Result<(Vec<Source>, Vec<Millihertz>)> {
     let models = if a.model.is_empty() {
         let mut v = default_models(&Profile::HAND);
         v.extend(shipped_blobs("hand-force-40hz"));
@@ -204,7 +268,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         sources.push(Source {
             name: match &hand_rule {
                 Some(r) => format!("{file} (fused in the firmware: {r})"),
-                None => file,
+                None => file.clone(),
             },
             blob: Some(blob.clone()),
             oracle: None,
@@ -220,12 +284,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 1e6 / rate_mhz.0 as f64,
             );
             sources.push(Source {
-                name: format!(
-                    "{} fused (rule OR flag under {g:.2}·peak)",
-                    m.file_name().map_or(m.display().to_string(), |s| s
-                        .to_string_lossy()
-                        .into_owned())
-                ),
+                name: format!("{file} fused (rule OR flag under {g:.2}·peak)"),
                 blob: Some(blob),
                 oracle: None,
                 rate_mhz,
@@ -263,6 +322,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             }
         }
     }
+    Ok((sources, rates))
+}
+
+/// A controller-set decision (Q0.15 threshold, raise after, clear after) from `--threshold`.
+type SetDecision = (u16, u8, u8);
+
+/// The grip controller of the options, and the decision it sets after grasp start.
+fn controller(a: &Args) -> anyhow::Result<(ControllerConfig, Option<SetDecision>)> {
     let decision = match a.threshold {
         Some(t) if t > 0.0 && t < 1.0 && a.raise_after >= 1 && a.clear_after >= 1 => Some((
             Q15::from_f64(t).header_threshold(),
@@ -276,7 +343,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let ctl = ControllerConfig {
         step_fraction: a.step,
-        rate_mhz: default_rate,
+        rate_mhz: Profile::HAND.default_rate_mhz(),
         decision,
         settle_s: a.settle_ms as f64 / 1000.0,
         hold_off_s: a.hold_off_ms as f64 / 1000.0,
@@ -285,6 +352,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             LatencyArg::Deadline => Latency::Deadline,
         },
     };
+    Ok((ctl, decision))
+}
+
+/// The report's set-up lines and the table header.
+fn header(a: &Args, rates: &[Millihertz], decision: Option<SetDecision>) -> String {
     let latency = match a.latency {
         LatencyArg::Firmware => format!(
             "latency {:.1} ms (modelled inference of a 16-channel frame) + 0.61 ms on the wire \
@@ -320,83 +392,46 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "| situation | prediction | drops | prevented (of drops off) | grip increases / trial (before the lift) | final grip (median, N) | final / minimum needed (median) |"
     );
     let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|");
-    for sit in Situation::ALL {
-        let scenarios: Vec<Scenario> = (0..a.trials as u64)
-            .map(|i| Scenario::draw(a.seed, i, sit))
-            .collect();
-        let min: Vec<f64> = scenarios.iter().map(|s| min_grip_needed(s, &ctl)).collect();
-        let mut results: Vec<(String, Vec<Outcome>)> = Vec::new();
-        for s in &sources {
-            let src = match (&s.blob, s.oracle, s.rule) {
-                (Some(b), _, Some((_, scale, contact))) if s.fused.is_some() => FlagSource::Fused {
-                    blob: b.as_bytes(),
-                    fused: s.fused.expect("fused"),
-                    scale,
-                    contact,
-                },
-                (Some(b), _, _) => FlagSource::Model(b.as_bytes()),
-                (None, Some(delay_frames), _) => FlagSource::Oracle { delay_frames },
-                (None, None, Some((rule, scale, contact))) => FlagSource::LoadRule {
-                    rule,
-                    scale,
-                    contact,
-                },
-                _ => FlagSource::Off,
-            };
-            let ctl = ControllerConfig {
-                rate_mhz: s.rate_mhz,
-                ..ctl
-            };
-            results.push((
-                s.name.clone(),
-                run_all(&scenarios, src, &ctl, a.seed, &pool),
-            ));
-        }
-        let off = results[0].1.clone();
-        for (name, r) in &results {
-            let c = summarise(r, &off, &min);
-            let _ = writeln!(
-                md,
-                "| {} | {} | {}/{} ({:.0} %) | {} | {:.1} ({:.1}) | {:.2} | {:.2} |",
-                sit.name(),
-                name,
-                c.drops,
-                c.n,
-                100.0 * c.drops as f64 / c.n.max(1) as f64,
-                if name == "off" {
-                    "—".to_string()
-                } else {
-                    format!("{}/{}", c.prevented, c.drops_off)
-                },
-                c.mean_increases,
-                c.mean_increases_before_lift,
-                c.median_final_n,
-                c.median_final_over_min
-            );
-        }
+    md
+}
+
+/// One situation's rows: every source against "off" (the first), then the minimum grip.
+fn situation_rows(
+    md: &mut String,
+    sit: Situation,
+    results: &[(String, Vec<Outcome>)],
+    min: &[f64],
+) {
+    let off = &results[0].1;
+    for (name, r) in results {
+        let c = summarise(r, off, min);
         let _ = writeln!(
             md,
-            "| {} | minimum constant grip that holds | | | | {:.2} | 1.00 |",
+            "| {} | {} | {}/{} ({:.0} %) | {} | {:.1} ({:.1}) | {:.2} | {:.2} |",
             sit.name(),
-            {
-                let mut m = min.clone();
-                m.sort_by(f64::total_cmp);
-                m[m.len() / 2]
-            }
+            name,
+            c.drops,
+            c.n,
+            100.0 * c.drops as f64 / c.n.max(1) as f64,
+            if name == "off" {
+                "—".to_string()
+            } else {
+                format!("{}/{}", c.prevented, c.drops_off)
+            },
+            c.mean_increases,
+            c.mean_increases_before_lift,
+            c.median_final_n,
+            c.median_final_over_min
         );
-        if let Some(dir) = &a.out {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-            let png = dir.join(format!("closed-loop-{}.png", sit.name()));
-            plot(&scenarios, &results, &min, sit, &png)?;
-        }
-        eprintln!("closed-loop: {} done", sit.name());
     }
-    print!("{md}");
-    if let Some(dir) = &a.out {
-        let p = dir.join("closed-loop.md");
-        std::fs::write(&p, &md).with_context(|| format!("writing {}", p.display()))?;
-    }
-    Ok(())
+    let mut m = min.to_vec();
+    m.sort_by(f64::total_cmp);
+    let _ = writeln!(
+        md,
+        "| {} | minimum constant grip that holds | | | | {:.2} | 1.00 |",
+        sit.name(),
+        m[m.len() / 2]
+    );
 }
 
 /// Force and grip over time for the first three trials of a situation: one panel per trial,
