@@ -260,6 +260,190 @@ fn seed_run(
     })
 }
 
+/// The summary: every detector's row (mean and range over the seeds), the rule's picks and the
+/// fused decisions' picks; the rows as JSON.
+fn summary_section(md: &mut String, seeds: &[SeedRun], guard: f64) -> Vec<serde_json::Value> {
+    let _ = writeln!(
+        md,
+        "Hand flag against the hand-load rule, cross-validation by trial, {} training seed{} \
+         ({}), held-out grasps in the armed window (hand level). Figures: mean over the seeds, \
+         range in brackets (no range: the same on every seed).\n",
+        seeds.len(),
+        if seeds.len() == 1 { "" } else { "s" },
+        seeds
+            .iter()
+            .map(|s| s.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let _ = writeln!(
+        md,
+        "| detector | seeds | detected | ≥ 300 ms ahead | lead median | false-alarm grasps | false alarms / armed min |\n|---|---:|---|---|---|---|---|"
+    );
+    let model_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.model)).collect();
+    let rule_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.rule)).collect();
+    let (r1, j1) = summary_row("model (hand flag)", &model_m);
+    let (r2, j2) = summary_row("load rule", &rule_m);
+    let fused_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.fused)).collect();
+    let (r3, j3) = summary_row(
+        &format!("fused: rule OR (model flag AND load < {:.2}·peak)", guard),
+        &fused_m,
+    );
+    let tuned_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.tuned)).collect();
+    let (r4, j4) = summary_row("fused, all three parameters picked per fold", &tuned_m);
+    let _ = writeln!(md, "{r1}\n{r2}\n{r3}\n{r4}");
+    let _ = writeln!(
+        md,
+        "\nLoad rule parameters, picked on each fold's training trials: {}.",
+        seeds.first().map_or("", |s| s.rule_picks.as_str())
+    );
+    let _ = writeln!(
+        md,
+        "\nFused: the fold's rule at its picked fraction and window, OR the model's hand flag \
+         while the hand load is below {:.2} of the same peak (`slipguard_core::decision::FusedHand`; \
+         the guard fixed beforehand). The last row picks strict fraction, guard and window per fold \
+         on its training trials, where the fold's model is in-sample:\n",
+        guard
+    );
+    for s in seeds {
+        let _ = writeln!(md, "- {}: {}", s.name, s.tuned_picks.join("; "));
+    }
+    vec![j1, j2, j3, j4]
+}
+
+/// The held-out grasps of the first seed (the same on every seed), sorted: (trial, failure).
+fn grasp_ids(seeds: &[SeedRun]) -> Vec<(&str, bool)> {
+    let mut ids: Vec<(&str, bool)> = seeds
+        .first()
+        .map(|s| {
+            s.rule
+                .iter()
+                .map(|g| (g.trial.as_str(), g.failure))
+                .collect()
+        })
+        .unwrap_or_default();
+    ids.sort();
+    ids
+}
+
+/// The held-out grasp of `id` among `v`.
+fn find(v: &[ArmedGrasp], id: &str) -> Option<ArmedGrasp> {
+    v.iter().find(|g| g.trial == id).cloned()
+}
+
+/// Per failure: the rule's lead, the model's on each seed, their difference, the fused lead.
+fn per_failure_section(
+    md: &mut String,
+    seeds: &[SeedRun],
+    ids: &[(&str, bool)],
+) -> Vec<serde_json::Value> {
+    let fmt_lead = |l: Option<f64>| l.map_or("missed".into(), |l| format!("{l:.0}"));
+    let _ = writeln!(
+        md,
+        "\nPer failure: lead (ms) of the rule and of the model on each seed, and the model's lead \
+         minus the rule's (a miss counts as lead 0).\n"
+    );
+    let _ = writeln!(
+        md,
+        "| failure | rule | model ({}) | model − rule (mean, range) | fused |\n|---|---:|---|---|---|",
+        seeds
+            .iter()
+            .map(|s| s.name.as_str())
+            .collect::<Vec<_>>()
+            .join(" / ")
+    );
+    let mut per_failure = Vec::new();
+    for &(id, failure) in ids.iter().filter(|x| x.1) {
+        let _ = failure;
+        let rule = seeds
+            .first()
+            .and_then(|s| find(&s.rule, id))
+            .and_then(|g| g.lead_ms());
+        let leads: Vec<Option<f64>> = seeds
+            .iter()
+            .map(|s| find(&s.model, id).and_then(|g| g.lead_ms()))
+            .collect();
+        let fused: Vec<Option<f64>> = seeds
+            .iter()
+            .map(|s| find(&s.fused, id).and_then(|g| g.lead_ms()))
+            .collect();
+        let diff: Vec<f64> = leads
+            .iter()
+            .map(|l| l.unwrap_or(0.0) - rule.unwrap_or(0.0))
+            .collect();
+        let _ = writeln!(
+            md,
+            "| {id} | {} | {} | {} | {} |",
+            fmt_lead(rule),
+            leads
+                .iter()
+                .map(|l| fmt_lead(*l))
+                .collect::<Vec<_>>()
+                .join(" / "),
+            mean_range(&diff, 0),
+            fused
+                .iter()
+                .map(|l| fmt_lead(*l))
+                .collect::<Vec<_>>()
+                .join(" / "),
+        );
+        per_failure.push(serde_json::json!({
+            "trial": id, "rule_lead_ms": rule, "model_lead_ms": leads, "model_minus_rule_ms": diff,
+            "fused_lead_ms": fused,
+        }));
+    }
+    per_failure
+}
+
+/// Per success: a false alarm of the rule, of the model on each seed, of the fused decision.
+fn per_success_section(
+    md: &mut String,
+    seeds: &[SeedRun],
+    ids: &[(&str, bool)],
+) -> Vec<serde_json::Value> {
+    let _ = writeln!(
+        md,
+        "\nPer success: a false alarm (any hand flag in the armed window) of the rule and of the \
+         model on each seed.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| success | rule | model ({}) | fused |\n|---|---|---|---|",
+        seeds
+            .iter()
+            .map(|s| s.name.as_str())
+            .collect::<Vec<_>>()
+            .join(" / ")
+    );
+    let mut per_success = Vec::new();
+    let yn = |b: bool| if b { "alarm" } else { "—" };
+    for &(id, _) in ids.iter().filter(|x| !x.1) {
+        let rule = seeds
+            .first()
+            .and_then(|s| find(&s.rule, id))
+            .is_some_and(|g| g.alarms() > 0);
+        let model: Vec<bool> = seeds
+            .iter()
+            .map(|s| find(&s.model, id).is_some_and(|g| g.alarms() > 0))
+            .collect();
+        let fused: Vec<bool> = seeds
+            .iter()
+            .map(|s| find(&s.fused, id).is_some_and(|g| g.alarms() > 0))
+            .collect();
+        let _ = writeln!(
+            md,
+            "| {id} | {} | {} | {} |",
+            yn(rule),
+            model.iter().map(|&b| yn(b)).collect::<Vec<_>>().join(" / "),
+            fused.iter().map(|&b| yn(b)).collect::<Vec<_>>().join(" / ")
+        );
+        per_success.push(serde_json::json!({
+            "trial": id, "rule_alarm": rule, "model_alarm": model, "fused_alarm": fused,
+        }));
+    }
+    per_success
+}
+
 /// The rule over its fine grid on every scored trial (the input scale and contact gate of the
 /// first run's model, as [`seed_run`]'s).
 fn load_rule_sweep(
@@ -485,158 +669,10 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
         eprintln!("compare: {} scored", g.name);
     }
     let mut md = String::new();
-    let _ = writeln!(
-        md,
-        "Hand flag against the hand-load rule, cross-validation by trial, {} training seed{} \
-         ({}), held-out grasps in the armed window (hand level). Figures: mean over the seeds, \
-         range in brackets (no range: the same on every seed).\n",
-        seeds.len(),
-        if seeds.len() == 1 { "" } else { "s" },
-        seeds
-            .iter()
-            .map(|s| s.name.as_str())
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
-    let _ = writeln!(
-        md,
-        "| detector | seeds | detected | ≥ 300 ms ahead | lead median | false-alarm grasps | false alarms / armed min |\n|---|---:|---|---|---|---|---|"
-    );
-    let model_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.model)).collect();
-    let rule_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.rule)).collect();
-    let (r1, j1) = summary_row("model (hand flag)", &model_m);
-    let (r2, j2) = summary_row("load rule", &rule_m);
-    let fused_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.fused)).collect();
-    let (r3, j3) = summary_row(
-        &format!("fused: rule OR (model flag AND load < {:.2}·peak)", a.guard),
-        &fused_m,
-    );
-    let tuned_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.tuned)).collect();
-    let (r4, j4) = summary_row("fused, all three parameters picked per fold", &tuned_m);
-    let _ = writeln!(md, "{r1}\n{r2}\n{r3}\n{r4}");
-    let _ = writeln!(
-        md,
-        "\nLoad rule parameters, picked on each fold's training trials: {}.",
-        seeds.first().map_or("", |s| s.rule_picks.as_str())
-    );
-    let _ = writeln!(
-        md,
-        "\nFused: the fold's rule at its picked fraction and window, OR the model's hand flag \
-         while the hand load is below {:.2} of the same peak (`slipguard_core::decision::FusedHand`; \
-         the guard fixed beforehand). The last row picks strict fraction, guard and window per fold \
-         on its training trials, where the fold's model is in-sample:\n",
-        a.guard
-    );
-    for s in &seeds {
-        let _ = writeln!(md, "- {}: {}", s.name, s.tuned_picks.join("; "));
-    }
-    // Paired per grasp.
-    let mut ids: Vec<(&str, bool)> = seeds
-        .first()
-        .map(|s| {
-            s.rule
-                .iter()
-                .map(|g| (g.trial.as_str(), g.failure))
-                .collect()
-        })
-        .unwrap_or_default();
-    ids.sort();
-    let find = |v: &[ArmedGrasp], id: &str| v.iter().find(|g| g.trial == id).cloned();
-    let fmt_lead = |l: Option<f64>| l.map_or("missed".into(), |l| format!("{l:.0}"));
-    let _ = writeln!(
-        md,
-        "\nPer failure: lead (ms) of the rule and of the model on each seed, and the model's lead \
-         minus the rule's (a miss counts as lead 0).\n"
-    );
-    let _ = writeln!(
-        md,
-        "| failure | rule | model ({}) | model − rule (mean, range) | fused |\n|---|---:|---|---|---|",
-        seeds
-            .iter()
-            .map(|s| s.name.as_str())
-            .collect::<Vec<_>>()
-            .join(" / ")
-    );
-    let mut per_failure = Vec::new();
-    for &(id, failure) in ids.iter().filter(|x| x.1) {
-        let _ = failure;
-        let rule = seeds
-            .first()
-            .and_then(|s| find(&s.rule, id))
-            .and_then(|g| g.lead_ms());
-        let leads: Vec<Option<f64>> = seeds
-            .iter()
-            .map(|s| find(&s.model, id).and_then(|g| g.lead_ms()))
-            .collect();
-        let fused: Vec<Option<f64>> = seeds
-            .iter()
-            .map(|s| find(&s.fused, id).and_then(|g| g.lead_ms()))
-            .collect();
-        let diff: Vec<f64> = leads
-            .iter()
-            .map(|l| l.unwrap_or(0.0) - rule.unwrap_or(0.0))
-            .collect();
-        let _ = writeln!(
-            md,
-            "| {id} | {} | {} | {} | {} |",
-            fmt_lead(rule),
-            leads
-                .iter()
-                .map(|l| fmt_lead(*l))
-                .collect::<Vec<_>>()
-                .join(" / "),
-            mean_range(&diff, 0),
-            fused
-                .iter()
-                .map(|l| fmt_lead(*l))
-                .collect::<Vec<_>>()
-                .join(" / "),
-        );
-        per_failure.push(serde_json::json!({
-            "trial": id, "rule_lead_ms": rule, "model_lead_ms": leads, "model_minus_rule_ms": diff,
-            "fused_lead_ms": fused,
-        }));
-    }
-    let _ = writeln!(
-        md,
-        "\nPer success: a false alarm (any hand flag in the armed window) of the rule and of the \
-         model on each seed.\n"
-    );
-    let _ = writeln!(
-        md,
-        "| success | rule | model ({}) | fused |\n|---|---|---|---|",
-        seeds
-            .iter()
-            .map(|s| s.name.as_str())
-            .collect::<Vec<_>>()
-            .join(" / ")
-    );
-    let mut per_success = Vec::new();
-    let yn = |b: bool| if b { "alarm" } else { "—" };
-    for &(id, _) in ids.iter().filter(|x| !x.1) {
-        let rule = seeds
-            .first()
-            .and_then(|s| find(&s.rule, id))
-            .is_some_and(|g| g.alarms() > 0);
-        let model: Vec<bool> = seeds
-            .iter()
-            .map(|s| find(&s.model, id).is_some_and(|g| g.alarms() > 0))
-            .collect();
-        let fused: Vec<bool> = seeds
-            .iter()
-            .map(|s| find(&s.fused, id).is_some_and(|g| g.alarms() > 0))
-            .collect();
-        let _ = writeln!(
-            md,
-            "| {id} | {} | {} | {} |",
-            yn(rule),
-            model.iter().map(|&b| yn(b)).collect::<Vec<_>>().join(" / "),
-            fused.iter().map(|&b| yn(b)).collect::<Vec<_>>().join(" / ")
-        );
-        per_success.push(serde_json::json!({
-            "trial": id, "rule_alarm": rule, "model_alarm": model, "fused_alarm": fused,
-        }));
-    }
+    let summary = summary_section(&mut md, &seeds, a.guard);
+    let ids = grasp_ids(&seeds);
+    let per_failure = per_failure_section(&mut md, &seeds, &ids);
+    let per_success = per_success_section(&mut md, &seeds, &ids);
     let rule_sweep = load_rule_sweep(&trials, &groups)?;
     let ceiling = ceiling_section(&mut md, &rule_sweep, &seeds);
     if !skipped.is_empty() {
@@ -651,7 +687,7 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     }
     if let Some(p) = &a.json {
         let v = serde_json::json!({
-            "summary": [j1, j2, j3, j4],
+            "summary": summary,
             "per_failure": per_failure,
             "per_success": per_success,
             "ceiling": ceiling,
