@@ -46,6 +46,9 @@ pub struct Args {
     pub train_args: Vec<String>,
 }
 
+/// Every decision of a detector family with its name and its point on the operating curve.
+type Sweep = Vec<(String, CurvePoint)>;
+
 /// One seed's held-out grasps: the model's hand flag and the rule's, by trial.
 struct SeedRun {
     name: String,
@@ -60,11 +63,11 @@ struct SeedRun {
     tuned_picks: Vec<String>,
     /// The model's held-out hand p over thresholds × raise_after (each fold's model on its own
     /// held-out grasps, pooled): every decision's name and its point.
-    model_sweep: Vec<(String, CurvePoint)>,
+    model_sweep: Sweep,
     /// The fused decision over its grid with the model's held-out hand flags.
-    fused_sweep: Vec<(String, CurvePoint)>,
+    fused_sweep: Sweep,
     /// The fused decision with the model's threshold and raise_after swept as well.
-    fused_p_sweep: Vec<(String, CurvePoint)>,
+    fused_p_sweep: Sweep,
 }
 
 /// Thresholds of the model's ceiling sweep: 0.02 to 0.98 by 0.02.
@@ -183,69 +186,7 @@ fn seed_run(
             tuned_picks.push(load_rule::fused_name(&f));
         }
     }
-    let mut model_sweep = Vec::new();
-    for r in SWEEP_RAISE {
-        for th in sweep_thresholds() {
-            let grasps: Vec<ArmedGrasp> = heldout
-                .iter()
-                .map(|(w, base)| {
-                    let mut h = *base;
-                    h.decision.threshold_q15 =
-                        slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
-                    h.decision.raise_after = r;
-                    w.grasp_with(&h)
-                })
-                .collect();
-            model_sweep.push((
-                format!("p ≥ {th:.2}, raised after {r}"),
-                CurvePoint::of(th, r, &grasps),
-            ));
-        }
-    }
-    let pairs: Vec<(&load_rule::LoadRun, &[bool])> = heldout
-        .iter()
-        .filter_map(|(w, _)| {
-            let l = loads.iter().find(|l| l.trial == w.trial)?;
-            Some((l, w.run.model_flag.as_slice()))
-        })
-        .collect();
-    let fused_sweep = load_rule::fused_sweep(
-        &pairs,
-        &load_rule::sweep_stricts(),
-        &load_rule::sweep_guards(),
-    );
-    // The model's threshold swept too, inside the fused decision (a coarser grid: four
-    // dimensions).
-    let mut fused_p_sweep = Vec::new();
-    for r in [1u8, 2, 3] {
-        for th in (1..=24).map(|i| f64::from(i) * 0.04) {
-            let flags: Vec<Vec<bool>> = heldout
-                .iter()
-                .map(|(w, base)| {
-                    let mut h = *base;
-                    h.decision.threshold_q15 =
-                        slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
-                    h.decision.raise_after = r;
-                    w.run.hand_flag_with(&h)
-                })
-                .collect();
-            let pairs: Vec<(&load_rule::LoadRun, &[bool])> = heldout
-                .iter()
-                .zip(&flags)
-                .filter_map(|((w, _), f)| {
-                    let l = loads.iter().find(|l| l.trial == w.trial)?;
-                    Some((l, f.as_slice()))
-                })
-                .collect();
-            let stricts = [0.0, 0.2, 0.3, 0.4, 0.5];
-            let guards: Vec<f64> = (3..=10).map(|i| f64::from(i) * 0.1).collect();
-            fused_p_sweep.extend(
-                load_rule::fused_sweep(&pairs, &stricts, &guards)
-                    .into_iter()
-                    .map(|(n, p)| (format!("{n}, model p ≥ {th:.2} raised after {r}"), p)),
-            );
-        }
-    }
+    let (model_sweep, fused_sweep, fused_p_sweep) = ceiling_sweeps(&heldout, &loads);
     Ok(SeedRun {
         name: g.name.clone(),
         model,
@@ -446,10 +387,7 @@ fn per_success_section(
 
 /// The rule over its fine grid on every scored trial (the input scale and contact gate of the
 /// first run's model, as [`seed_run`]'s).
-fn load_rule_sweep(
-    trials: &[Trial],
-    groups: &[Group],
-) -> anyhow::Result<Vec<(String, CurvePoint)>> {
+fn load_rule_sweep(trials: &[Trial], groups: &[Group]) -> anyhow::Result<Sweep> {
     use slipguard_learn::load_rule;
     let Some(config) = groups.first().map(|g| &g.members[0].0.model.config) else {
         return Ok(Vec::new());
@@ -588,6 +526,80 @@ fn ceiling_section(
         );
     }
     serde_json::Value::Array(json)
+}
+
+/// A model's, a fusion's and a fusion with the model's threshold swept: every decision of
+/// each family scored on one seed's held-out runs (each with its fold's hand decision) beside
+/// their hand loads.
+fn ceiling_sweeps(
+    heldout: &[(product::WindowedRun, slipguard_core::decision::HandConfig)],
+    loads: &[slipguard_learn::load_rule::LoadRun],
+) -> (Sweep, Sweep, Sweep) {
+    use slipguard_learn::load_rule;
+    let mut model_sweep = Vec::new();
+    for r in SWEEP_RAISE {
+        for th in sweep_thresholds() {
+            let grasps: Vec<ArmedGrasp> = heldout
+                .iter()
+                .map(|(w, base)| {
+                    let mut h = *base;
+                    h.decision.threshold_q15 =
+                        slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
+                    h.decision.raise_after = r;
+                    w.grasp_with(&h)
+                })
+                .collect();
+            model_sweep.push((
+                format!("p ≥ {th:.2}, raised after {r}"),
+                CurvePoint::of(th, r, &grasps),
+            ));
+        }
+    }
+    let pairs: Vec<(&load_rule::LoadRun, &[bool])> = heldout
+        .iter()
+        .filter_map(|(w, _)| {
+            let l = loads.iter().find(|l| l.trial == w.trial)?;
+            Some((l, w.run.model_flag.as_slice()))
+        })
+        .collect();
+    let fused_sweep = load_rule::fused_sweep(
+        &pairs,
+        &load_rule::sweep_stricts(),
+        &load_rule::sweep_guards(),
+    );
+    // The model's threshold swept too, inside the fused decision (a coarser grid: four
+    // dimensions).
+    let mut fused_p_sweep = Vec::new();
+    for r in [1u8, 2, 3] {
+        for th in (1..=24).map(|i| f64::from(i) * 0.04) {
+            let flags: Vec<Vec<bool>> = heldout
+                .iter()
+                .map(|(w, base)| {
+                    let mut h = *base;
+                    h.decision.threshold_q15 =
+                        slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
+                    h.decision.raise_after = r;
+                    w.run.hand_flag_with(&h)
+                })
+                .collect();
+            let pairs: Vec<(&load_rule::LoadRun, &[bool])> = heldout
+                .iter()
+                .zip(&flags)
+                .filter_map(|((w, _), f)| {
+                    let l = loads.iter().find(|l| l.trial == w.trial)?;
+                    Some((l, f.as_slice()))
+                })
+                .collect();
+            let stricts = [0.0, 0.2, 0.3, 0.4, 0.5];
+            let guards: Vec<f64> = (3..=10).map(|i| f64::from(i) * 0.1).collect();
+            fused_p_sweep.extend(
+                load_rule::fused_sweep(&pairs, &stricts, &guards)
+                    .into_iter()
+                    .map(|(n, p)| (format!("{n}, model p ≥ {th:.2} raised after {r}"), p)),
+            );
+        }
+    }
+    (model_sweep, fused_sweep, fused_p_sweep)
 }
 
 /// Mean and range of `v` as "mean (lo–hi)" with `prec` decimals.
