@@ -283,40 +283,7 @@ fn run_one(
         .model
         .clone()
         .unwrap_or_else(|| replay::default_model_for(&profile, trial.rate_mhz()));
-    if let Some(c) = a.plot_channel
-        && c >= profile.channels
-    {
-        bail!(
-            "--plot-channel {c}: the {} profile has channels 0 to {}",
-            profile.name,
-            profile.channels - 1
-        );
-    }
-    for w in &a.open_wire {
-        if w.channel >= profile.channels {
-            bail!(
-                "--open-wire {}:{}:{}: channel {} is not one of the {} profile's 0 to {}",
-                w.channel,
-                w.from_step,
-                w.to_step,
-                w.channel,
-                profile.name,
-                profile.channels - 1
-            );
-        }
-    }
-    // The model takes the profile's channels: a trial with more (they would be dropped) or
-    // fewer (they would be zero force) is refused.
-    if trial.n_channels() != profile.channels {
-        bail!(
-            "{}: {} channels, the {} profile has {} (give --profile, or a trial with {} channels)",
-            name,
-            trial.n_channels(),
-            profile.name,
-            profile.channels,
-            profile.channels
-        );
-    }
+    check_against_profile(a, &profile, &name, &trial)?;
     let (blob, _) = check::load_model("replay", &model, &profile, a.allow_bad_model)?;
     if let Some(note) = in_sample_note(&model, &a.trial, &trial) {
         log.line(format!("replay: note: {note}"));
@@ -329,51 +296,7 @@ fn run_one(
         }
         Err(e) => bail!("{e} (use --any-rate to replay anyway)"),
     };
-    let (script, mut wires) = match a.script {
-        Script::None => (Vec::new(), Vec::new()),
-        Script::Cheez => replay::cheez_script(),
-        Script::Marks => {
-            let mut cmds = Vec::new();
-            if let Some(g) = a.grasp_at.or(trial.marks.grasp_start.map(|g| g as u32)) {
-                cmds.push(Scheduled {
-                    before_frame: g,
-                    command: Command::GraspStart,
-                });
-            }
-            // The lift only echoes a phase mark: by default sent when recording (--samples).
-            let lift_mark = trial.marks.lift_start.filter(|_| a.samples);
-            if let Some(l) = a.lift_at.or(lift_mark.map(|l| l as u32)) {
-                cmds.push(Scheduled {
-                    before_frame: l,
-                    command: Command::Lift,
-                });
-            }
-            if let Some(r) = a.release_at.or(trial.marks.release.map(|r| r as u32)) {
-                cmds.push(Scheduled {
-                    before_frame: r,
-                    command: Command::Release,
-                });
-            }
-            cmds.sort_by_key(|c| c.before_frame);
-            (replay::encode_script(&cmds), Vec::new())
-        }
-    };
-    let script = if a.samples {
-        let mut v = replay::encode_script(&[
-            Scheduled {
-                before_frame: 0,
-                command: Command::Info,
-            },
-            Scheduled {
-                before_frame: 0,
-                command: Command::StreamMode(slipguard_core::protocol::StreamMode::FlagsAndSamples),
-            },
-        ]);
-        v.extend(script);
-        v
-    } else {
-        script
-    };
+    let (script, mut wires) = command_script(a, &trial);
     wires.extend(a.open_wire.iter().copied());
     let out = replay::replay(profile, blob.as_bytes(), &trial, &script, &wires);
     let frames = replay::decode_stream(&out.wire);
@@ -432,30 +355,133 @@ fn run_one(
         log.line(format!("replay: plot {}", png.display()));
     }
     if let Some(name) = &a.port {
-        let mut port = serialport::new(name, a.baud)
-            .timeout(Duration::from_millis(500))
-            .open()
-            .with_context(|| format!("opening {name}"))?;
-        // Pace: each frame leaves when its last sample's time has passed (its timestamp),
-        // replies right after the frame they follow.
-        let start = Instant::now();
-        let mut d = slipguard_core::protocol::Deframer::new();
-        let mut chunk = Vec::new();
-        for &b in &out.wire {
-            chunk.push(b);
-            if let Some(Ok(f)) = d.push_decode(b) {
-                if let Message::Flags(fl) = f.msg {
-                    let due = Duration::from_micros(fl.timestamp_us as u64);
-                    if let Some(wait) = due.checked_sub(start.elapsed()) {
-                        std::thread::sleep(wait);
-                    }
-                }
-                port.write_all(&chunk)?;
-                chunk.clear();
-            }
-        }
-        port.write_all(&chunk)?;
-        port.flush()?;
+        send_paced(name, a.baud, &out.wire)?;
     }
+    Ok(())
+}
+
+/// Refuses a `--plot-channel`, an `--open-wire` channel or a trial's channel count that the
+/// profile does not have (the model takes the profile's channels: more would be dropped, fewer
+/// would be zero force).
+fn check_against_profile(
+    a: &Args,
+    profile: &slipguard_app::profile::Profile,
+    name: &str,
+    trial: &Trial,
+) -> anyhow::Result<()> {
+    if let Some(c) = a.plot_channel
+        && c >= profile.channels
+    {
+        bail!(
+            "--plot-channel {c}: the {} profile has channels 0 to {}",
+            profile.name,
+            profile.channels - 1
+        );
+    }
+    for w in &a.open_wire {
+        if w.channel >= profile.channels {
+            bail!(
+                "--open-wire {}:{}:{}: channel {} is not one of the {} profile's 0 to {}",
+                w.channel,
+                w.from_step,
+                w.to_step,
+                w.channel,
+                profile.name,
+                profile.channels - 1
+            );
+        }
+    }
+    if trial.n_channels() != profile.channels {
+        bail!(
+            "{}: {} channels, the {} profile has {} (give --profile, or a trial with {} channels)",
+            name,
+            trial.n_channels(),
+            profile.name,
+            profile.channels,
+            profile.channels
+        );
+    }
+    Ok(())
+}
+
+/// Scripted commands: each with the frame it goes before and its encoded bytes.
+type ScriptedBytes = Vec<(u32, Vec<u8>)>;
+
+/// The commands sent to the firmware during the replay (`--script`, and with `--samples` the
+/// info request and the samples stream first), encoded, and the scripted open wires.
+fn command_script(a: &Args, trial: &Trial) -> (ScriptedBytes, Vec<OpenWire>) {
+    let (script, wires) = match a.script {
+        Script::None => (Vec::new(), Vec::new()),
+        Script::Cheez => replay::cheez_script(),
+        Script::Marks => {
+            let mut cmds = Vec::new();
+            if let Some(g) = a.grasp_at.or(trial.marks.grasp_start.map(|g| g as u32)) {
+                cmds.push(Scheduled {
+                    before_frame: g,
+                    command: Command::GraspStart,
+                });
+            }
+            // The lift only echoes a phase mark: by default sent when recording (--samples).
+            let lift_mark = trial.marks.lift_start.filter(|_| a.samples);
+            if let Some(l) = a.lift_at.or(lift_mark.map(|l| l as u32)) {
+                cmds.push(Scheduled {
+                    before_frame: l,
+                    command: Command::Lift,
+                });
+            }
+            if let Some(r) = a.release_at.or(trial.marks.release.map(|r| r as u32)) {
+                cmds.push(Scheduled {
+                    before_frame: r,
+                    command: Command::Release,
+                });
+            }
+            cmds.sort_by_key(|c| c.before_frame);
+            (replay::encode_script(&cmds), Vec::new())
+        }
+    };
+    let script = if a.samples {
+        let mut v = replay::encode_script(&[
+            Scheduled {
+                before_frame: 0,
+                command: Command::Info,
+            },
+            Scheduled {
+                before_frame: 0,
+                command: Command::StreamMode(slipguard_core::protocol::StreamMode::FlagsAndSamples),
+            },
+        ]);
+        v.extend(script);
+        v
+    } else {
+        script
+    };
+    (script, wires)
+}
+
+/// `--port`: the replay's wire bytes to a serial port, each frame when its last sample's time
+/// has passed (its timestamp), replies right after the frame they follow.
+fn send_paced(name: &str, baud: u32, wire: &[u8]) -> anyhow::Result<()> {
+    let mut port = serialport::new(name, baud)
+        .timeout(Duration::from_millis(500))
+        .open()
+        .with_context(|| format!("opening {name}"))?;
+    let start = Instant::now();
+    let mut d = slipguard_core::protocol::Deframer::new();
+    let mut chunk = Vec::new();
+    for &b in wire {
+        chunk.push(b);
+        if let Some(Ok(f)) = d.push_decode(b) {
+            if let Message::Flags(fl) = f.msg {
+                let due = Duration::from_micros(fl.timestamp_us as u64);
+                if let Some(wait) = due.checked_sub(start.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+            }
+            port.write_all(&chunk)?;
+            chunk.clear();
+        }
+    }
+    port.write_all(&chunk)?;
+    port.flush()?;
     Ok(())
 }
