@@ -63,9 +63,9 @@ model_line="$(grep -m1 'model ' "$work/qemu.txt" || true)"
 echo
 sed -n '/^== Cortex-M4 cycle estimate per part/,/^cycles: /p' "$work/bench.txt"
 
-# The closed-loop simulation's modelled inference time (host-tools/src/closed_loop.rs), checked
+# The closed-loop simulation's modelled inference time (host-tools/learn/src/closed_loop.rs), checked
 # against this frame's estimate below.
-inference_s="$(sed -n 's/^pub const INFERENCE_S: f64 = \([0-9.]*\);.*/\1/p' "$root/host-tools/src/closed_loop.rs")"
+inference_s="$(sed -n 's/^pub const INFERENCE_S: f64 = \([0-9.]*\);.*/\1/p' "$root/host-tools/learn/src/closed_loop.rs")"
 
 awk -v flash="$flash" -v model="$model" -v ram="$ram" -v model_ram="$model_ram" -v insns="$insns" \
   -v cycles="$span_cycles" -v stall="$span_stall" -v fetch="$span_fetch" -v frames="$frames" -v strict="$strict" -v ml="$model_line" \
