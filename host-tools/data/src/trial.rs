@@ -239,6 +239,21 @@ pub struct PhaseMarks {
     pub release: Option<usize>,
 }
 
+impl fmt::Display for PhaseMarks {
+    /// "grasp/lift/open" steps (the data set's l0/l1/l2), "-" where a mark is missing: the
+    /// marks column of `label --stats`, `simulate` and `dataset`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let m = |x: Option<usize>| x.map_or("-".to_string(), |v| v.to_string());
+        write!(
+            f,
+            "{}/{}/{}",
+            m(self.grasp_start),
+            m(self.lift_start),
+            m(self.open_start)
+        )
+    }
+}
+
 impl PhaseMarks {
     /// Phase of step `t`.
     pub fn phase_at(&self, t: usize) -> Phase {
@@ -425,5 +440,23 @@ impl Trial {
             return Err(format!("{} step labels for {n} steps", l.len()));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::PhaseMarks;
+
+    #[test]
+    fn phase_marks_print_as_grasp_lift_open_with_a_dash_for_a_missing_one() {
+        let m = PhaseMarks {
+            grasp_start: Some(64),
+            lift_start: None,
+            open_start: Some(149),
+            release: Some(200),
+        };
+        assert_eq!(m.to_string(), "64/-/149");
+        assert_eq!(PhaseMarks::default().to_string(), "-/-/-");
+        assert_eq!(format!("{:>10}", m.to_string()), "  64/-/149");
     }
 }

@@ -503,6 +503,16 @@ pub fn windowed_runs(
     runs.into_iter().filter_map(Result::transpose).collect()
 }
 
+/// `base` with the hand decision's threshold on p(unstable) (0…1, stored as the header's Q0.15
+/// threshold) and its raise_after (at least 1) replaced: one point of a decision sweep.
+pub fn with_decision(base: &HandConfig, threshold: f64, raise_after: u8) -> HandConfig {
+    let mut h = *base;
+    h.decision.threshold_q15 =
+        slipguard_core::decision::Q15::from_f64(threshold).header_threshold() as i16;
+    h.decision.raise_after = raise_after.max(1);
+    h
+}
+
 /// The operating curve over `thresholds` × `raise_after` (the hand's clear_after and k kept).
 pub fn operating_curve(
     runs: &[WindowedRun],
@@ -513,10 +523,7 @@ pub fn operating_curve(
     let mut out = Vec::new();
     for &r in raise_after {
         for &th in thresholds {
-            let mut h = *base;
-            h.decision.threshold_q15 =
-                slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
-            h.decision.raise_after = r.max(1);
+            let h = with_decision(base, th, r);
             let grasps: Vec<ArmedGrasp> = runs.iter().map(|w| w.grasp_with(&h)).collect();
             out.push(CurvePoint::of(th, r, &grasps));
         }

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use slipguard_data::Trial;
-use slipguard_data::armed::{ArmedGrasp, ArmedMetrics};
+use slipguard_data::armed::{ArmedGrasp, ArmedMetrics, ArmedReport, Interval};
 use slipguard_data::labels::LabelConfig;
 use slipguard_learn::product::{self, CurvePoint};
 
@@ -208,30 +208,29 @@ fn summary_section(md: &mut String, seeds: &[SeedRun], guard: f64) -> Vec<serde_
         md,
         "Hand flag against the hand-load rule, cross-validation by trial, {} training seed{} \
          ({}), held-out grasps in the armed window (hand level). Figures: mean over the seeds, \
-         range in brackets (no range: the same on every seed).\n",
+         range in brackets (no range: the same on every seed); 95 % CI: the lowest and highest \
+         bound of the seeds' 95 % bootstrap intervals over trials.\n",
         seeds.len(),
         if seeds.len() == 1 { "" } else { "s" },
-        seeds
-            .iter()
-            .map(|s| s.name.as_str())
-            .collect::<Vec<_>>()
-            .join(", ")
+        seed_names(seeds, ", ")
     );
     let _ = writeln!(
         md,
-        "| detector | seeds | detected | ≥ 300 ms ahead | lead median | false-alarm grasps | false alarms / armed min |\n|---|---:|---|---|---|---|---|"
+        "| detector | seeds | detected | 95 % CI | ≥ 300 ms ahead | lead median | false-alarm grasps | 95 % CI | false alarms / armed min |\n|---|---:|---|---|---|---|---|---|---|"
     );
-    let model_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.model)).collect();
-    let rule_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.rule)).collect();
-    let (r1, j1) = summary_row("model (hand flag)", &model_m);
-    let (r2, j2) = summary_row("load rule", &rule_m);
-    let fused_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.fused)).collect();
+    let per_seed = |f: fn(&SeedRun) -> &[ArmedGrasp]| -> Vec<ArmedReport> {
+        seeds.iter().map(|s| ArmedReport::of(f(s))).collect()
+    };
+    let (r1, j1) = summary_row("model (hand flag)", &per_seed(|s| &s.model));
+    let (r2, j2) = summary_row("load rule", &per_seed(|s| &s.rule));
     let (r3, j3) = summary_row(
         &format!("fused: rule OR (model flag AND load < {:.2}·peak)", guard),
-        &fused_m,
+        &per_seed(|s| &s.fused),
     );
-    let tuned_m: Vec<ArmedMetrics> = seeds.iter().map(|s| ArmedMetrics::of(&s.tuned)).collect();
-    let (r4, j4) = summary_row("fused, all three parameters picked per fold", &tuned_m);
+    let (r4, j4) = summary_row(
+        "fused, all three parameters picked per fold",
+        &per_seed(|s| &s.tuned),
+    );
     let _ = writeln!(md, "{r1}\n{r2}\n{r3}\n{r4}");
     let _ = writeln!(
         md,
@@ -287,11 +286,7 @@ fn per_failure_section(
     let _ = writeln!(
         md,
         "| failure | rule | model ({}) | model − rule (mean, range) | fused |\n|---|---:|---|---|---|",
-        seeds
-            .iter()
-            .map(|s| s.name.as_str())
-            .collect::<Vec<_>>()
-            .join(" / ")
+        seed_names(seeds, " / ")
     );
     let mut per_failure = Vec::new();
     for &(id, failure) in ids.iter().filter(|x| x.1) {
@@ -350,11 +345,7 @@ fn per_success_section(
     let _ = writeln!(
         md,
         "| success | rule | model ({}) | fused |\n|---|---|---|---|",
-        seeds
-            .iter()
-            .map(|s| s.name.as_str())
-            .collect::<Vec<_>>()
-            .join(" / ")
+        seed_names(seeds, " / ")
     );
     let mut per_success = Vec::new();
     let yn = |b: bool| if b { "alarm" } else { "—" };
@@ -521,7 +512,8 @@ fn ceiling_section(
         let _ = writeln!(
             md,
             "\nAt the goal's count of warnings ≥ 300 ms ahead, the decision with the fewest \
-             false-alarm grasps:\n\n{}",
+             false-alarm grasps (no interval: each is picked on the grasps it is scored on, a bound \
+             rather than an estimate; the held-out rows above carry theirs):\n\n{}",
             best_lines.join("\n")
         );
     }
@@ -541,13 +533,7 @@ fn ceiling_sweeps(
         for th in sweep_thresholds() {
             let grasps: Vec<ArmedGrasp> = heldout
                 .iter()
-                .map(|(w, base)| {
-                    let mut h = *base;
-                    h.decision.threshold_q15 =
-                        slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
-                    h.decision.raise_after = r;
-                    w.grasp_with(&h)
-                })
+                .map(|(w, base)| w.grasp_with(&product::with_decision(base, th, r)))
                 .collect();
             model_sweep.push((
                 format!("p ≥ {th:.2}, raised after {r}"),
@@ -574,13 +560,7 @@ fn ceiling_sweeps(
         for th in (1..=24).map(|i| f64::from(i) * 0.04) {
             let flags: Vec<Vec<bool>> = heldout
                 .iter()
-                .map(|(w, base)| {
-                    let mut h = *base;
-                    h.decision.threshold_q15 =
-                        slipguard_core::decision::Q15::from_f64(th).header_threshold() as i16;
-                    h.decision.raise_after = r;
-                    w.run.hand_flag_with(&h)
-                })
+                .map(|(w, base)| w.run.hand_flag_with(&product::with_decision(base, th, r)))
                 .collect();
             let pairs: Vec<(&load_rule::LoadRun, &[bool])> = heldout
                 .iter()
@@ -617,26 +597,52 @@ fn mean_range(v: &[f64], prec: usize) -> String {
     }
 }
 
+/// The seeds' names joined by `sep`.
+fn seed_names(seeds: &[SeedRun], sep: &str) -> String {
+    seeds
+        .iter()
+        .map(|s| s.name.as_str())
+        .collect::<Vec<_>>()
+        .join(sep)
+}
+
+/// The envelope of the seeds' 95 % intervals of one figure (a rate, shown in %): the lowest
+/// lower and the highest upper bound, "[lo–hi %]"; "-" where no seed has one.
+fn ci_envelope(per_seed: &[ArmedReport], ci: fn(&ArmedReport) -> Option<Interval>) -> String {
+    let v: Vec<Interval> = per_seed.iter().filter_map(ci).collect();
+    if v.is_empty() {
+        return "-".into();
+    }
+    let lo = v.iter().map(|i| i.lo).fold(f64::INFINITY, f64::min);
+    let hi = v.iter().map(|i| i.hi).fold(f64::NEG_INFINITY, f64::max);
+    format!("[{:.0}–{:.0} %]", 100.0 * lo, 100.0 * hi)
+}
+
 /// The figures of one detector over the seeds: one row.
-fn summary_row(name: &str, per_seed: &[ArmedMetrics]) -> (String, serde_json::Value) {
-    let f = |g: &dyn Fn(&ArmedMetrics) -> f64| per_seed.iter().map(g).collect::<Vec<f64>>();
-    let failures = per_seed.first().map_or(0, |m| m.failures);
-    let successes = per_seed.first().map_or(0, |m| m.successes);
+fn summary_row(name: &str, per_seed: &[ArmedReport]) -> (String, serde_json::Value) {
+    let f = |g: &dyn Fn(&ArmedMetrics) -> f64| {
+        per_seed.iter().map(|r| g(&r.metrics)).collect::<Vec<f64>>()
+    };
+    let failures = per_seed.first().map_or(0, |r| r.metrics.failures);
+    let successes = per_seed.first().map_or(0, |r| r.metrics.successes);
     let det = f(&|m| m.detected as f64);
     let d300 = f(&|m| m.detected_with_lead(300.0) as f64);
     let lead = per_seed
         .iter()
-        .filter_map(ArmedMetrics::lead_median_ms)
+        .filter_map(|r| r.metrics.lead_median_ms())
         .collect::<Vec<f64>>();
     let fa = f(&|m| m.false_alarm_grasps as f64);
     let fam = f(&|m| m.false_alarms_per_min().unwrap_or(0.0));
+    let interval = |i: Option<Interval>| i.map(|i| [i.lo, i.hi]);
     let row = format!(
-        "| {name} | {} | {}/{failures} | {}/{failures} | {} ms | {}/{successes} | {} |",
+        "| {name} | {} | {}/{failures} | {} | {}/{failures} | {} ms | {}/{successes} | {} | {} |",
         per_seed.len(),
         mean_range(&det, 2),
+        ci_envelope(per_seed, |r| r.detected_rate_ci),
         mean_range(&d300, 2),
         mean_range(&lead, 0),
         mean_range(&fa, 2),
+        ci_envelope(per_seed, |r| r.false_alarm_grasp_rate_ci),
         mean_range(&fam, 2),
     );
     let json = serde_json::json!({
@@ -645,9 +651,14 @@ fn summary_row(name: &str, per_seed: &[ArmedMetrics]) -> (String, serde_json::Va
         "failures": failures,
         "successes": successes,
         "detected": det,
+        "detected_rate_ci": per_seed.iter().map(|r| interval(r.detected_rate_ci)).collect::<Vec<_>>(),
         "detected_300ms": d300,
         "lead_median_ms": lead,
         "false_alarm_grasps": fa,
+        "false_alarm_grasp_rate_ci": per_seed
+            .iter()
+            .map(|r| interval(r.false_alarm_grasp_rate_ci))
+            .collect::<Vec<_>>(),
         "false_alarms_per_min": fam,
     });
     (row, json)

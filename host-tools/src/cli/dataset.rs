@@ -52,12 +52,7 @@ fn info(path: Option<PathBuf>) -> anyhow::Result<()> {
             t.n_channels(),
             t.rate_hz,
             t.unit.to_string(),
-            format!(
-                "{}/{}/{}",
-                m(t.marks.grasp_start),
-                m(t.marks.lift_start),
-                m(t.marks.open_start)
-            ),
+            t.marks.to_string(),
             t.outcome.to_string(),
             m(t.drop_step),
             max,

@@ -230,12 +230,7 @@ fn print_stats(
             "{:<28} {:>8} {:>12} {:>5} {:>5} {:>9} {:>6} {:>8}  {} / {}{}",
             t.id,
             t.outcome.to_string(),
-            format!(
-                "{}/{}/{}",
-                m(t.marks.grasp_start),
-                m(t.marks.lift_start),
-                m(t.marks.open_start)
-            ),
+            t.marks.to_string(),
             m(d.first_dip
                 .filter(|_| t.outcome != slipguard_data::Outcome::Success)),
             m(l.drop_step),

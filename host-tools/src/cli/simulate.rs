@@ -190,12 +190,7 @@ fn print_table(trials: &[Trial]) {
             t.n_steps(),
             t.rate_hz,
             t.outcome.to_string(),
-            format!(
-                "{}/{}/{}",
-                m(t.marks.grasp_start),
-                m(t.marks.lift_start),
-                m(t.marks.open_start)
-            ),
+            t.marks.to_string(),
             m(t.slip_onset_step),
             m(t.drop_step),
             t.contact_channels()
