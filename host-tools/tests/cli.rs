@@ -135,7 +135,7 @@ fn train_picks_the_decision_on_an_inner_cross_validation() {
     for needle in [
         "train inner 0:",
         "train inner 1:",
-        "decision tuned on 23 2-fold inner CV held-out trials",
+        "decision tuned on 59 2-fold inner CV held-out trials",
     ] {
         assert!(err.contains(needle), "expected `{needle}` in: {err}");
     }

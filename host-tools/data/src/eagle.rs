@@ -38,6 +38,9 @@ struct Meta {
     source_path: Option<String>,
     #[serde(default)]
     source_commit: Option<String>,
+    /// The marks and outcome were estimated from the force (no `label.txt` in the dataset).
+    #[serde(default)]
+    label_estimated: bool,
 }
 
 /// Read a `tactile.csv`: header of channel names, then rows of numbers.
@@ -151,6 +154,10 @@ pub fn load_eagle_trial(dir: &Path, cfg: &LabelConfig) -> Result<Trial> {
         ("direction", meta.direction.clone()),
         ("index", meta.index.map(|v| v.to_string())),
         ("label", Some(format!("{:?}", meta.label))),
+        (
+            crate::trial::LABEL_ESTIMATED_KEY,
+            meta.label_estimated.then(|| "true".to_string()),
+        ),
     ];
     for (k, v) in extra {
         if let Some(v) = v {

@@ -98,7 +98,7 @@ mod tests {
             .iter()
             .filter(|(p, _)| p.ends_with("tactile.csv"))
             .count();
-        assert_eq!(csv, 25);
+        assert_eq!(csv, 61);
         let blobs: Vec<_> = files::MODELS
             .iter()
             .map(|(p, _)| *p)

@@ -272,6 +272,21 @@ impl PhaseMarks {
     }
 }
 
+/// The [`Trial::extra`] key that says the marks were estimated from the force (value `true`).
+pub const LABEL_ESTIMATED_KEY: &str = "label_estimated";
+
+/// The grasp setting of a trial id: the id without its last two `_` fields (eagle-shoal's
+/// `<Object>_<A>_<B>_<direction>_<index>` → `<Object>_<A>_<B>`), or the whole id when it has
+/// fewer than three fields ([`Trial::grasp_setting`]).
+pub fn setting_of_id(id: &str) -> String {
+    let parts: Vec<&str> = id.split('_').collect();
+    if parts.len() >= 3 {
+        parts[..parts.len() - 2].join("_")
+    } else {
+        id.to_string()
+    }
+}
+
 /// One grasp trial (or one recording) of any sensor.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Trial {
@@ -368,6 +383,33 @@ impl Trial {
     pub fn total(&self) -> Vec<f32> {
         let all: Vec<usize> = (0..self.n_channels()).collect();
         self.sum_over(&all)
+    }
+
+    /// Whether the trial's phase marks and outcome were estimated from its force rather than
+    /// recorded (eagle-shoal trials without `label.txt`: `meta.json`'s `label_estimated`, the
+    /// method in data/eagle-shoal/README.md and docs/labels.md). Kept in [`Self::extra`] under
+    /// [`LABEL_ESTIMATED_KEY`] so that a recording written from the trial keeps it.
+    pub fn label_estimated(&self) -> bool {
+        self.extra
+            .get(LABEL_ESTIMATED_KEY)
+            .is_some_and(|v| v == "true")
+    }
+
+    /// The grasp setting the trial repeats: object, grip force and weight (`Cheez_100_814` of
+    /// eagle-shoal's `Cheez_100_814_top_8`), from the metadata keys `object`, `a` and `b` when
+    /// present, else the id without its last two `_` fields (direction and index), else the
+    /// id. Trials of one setting are near-repeats: cross-validation that must tell a user what
+    /// to expect on a new object or weight holds a whole setting out ([`Self::grasp_setting`]
+    /// is the group).
+    pub fn grasp_setting(&self) -> String {
+        if let (Some(o), Some(a), Some(b)) = (
+            self.extra.get("object"),
+            self.extra.get("a"),
+            self.extra.get("b"),
+        ) {
+            return format!("{o}_{a}_{b}");
+        }
+        setting_of_id(&self.id)
     }
 
     /// Indices of channels marked as in contact.

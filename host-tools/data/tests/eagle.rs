@@ -32,9 +32,14 @@ const FAILURES: [(&str, [usize; 3], usize); 7] = [
 fn all_trials_load_with_sizes_and_labels() {
     let cfg = LabelConfig::default();
     let trials = load_eagle_dataset(&data(), &cfg, |_, _| {}).expect("load");
-    assert_eq!(trials.len(), 25);
+    // 25 trials with the dataset's label.txt and 36 with marks estimated from the force
+    // (data/eagle-shoal/README.md); the estimated ones were copied up to the grasp's end.
+    assert_eq!(trials.len(), 61);
+    let estimated = trials.iter().filter(|t| t.label_estimated()).count();
+    assert_eq!(estimated, 36);
     for t in &trials {
-        assert_eq!(t.n_steps(), 400, "{}", t.id);
+        let rows = if t.label_estimated() { 280 } else { 400 };
+        assert_eq!(t.n_steps(), rows, "{}", t.id);
         assert_eq!(t.n_channels(), 16, "{}", t.id);
         assert_eq!(t.rate_hz, EAGLE_RATE_HZ);
         assert_eq!(t.unit, Unit::MilliNewton);
@@ -59,7 +64,24 @@ fn all_trials_load_with_sizes_and_labels() {
         .iter()
         .filter(|t| t.outcome == Outcome::Failure)
         .count();
-    assert_eq!(fails, 7);
+    assert_eq!(fails, 33);
+    let labelled_fails = trials
+        .iter()
+        .filter(|t| t.outcome == Outcome::Failure && !t.label_estimated())
+        .count();
+    assert_eq!(labelled_fails, 7);
+    // The grasp setting is object, grip force and weight: 24 settings, the repeats of one
+    // setting share it.
+    let mut settings: Vec<String> = trials.iter().map(|t| t.grasp_setting()).collect();
+    settings.sort();
+    settings.dedup();
+    assert_eq!(settings.len(), 24);
+    let cheez = trials
+        .iter()
+        .find(|t| t.id == "Cheez_100_814_top_8")
+        .unwrap();
+    assert_eq!(cheez.grasp_setting(), "Cheez_100_814");
+    assert!(cheez.label_estimated());
     // A success with no real contact keeps all 16 channels, all marked as no contact.
     let none = trials.iter().find(|t| t.id == "Cheez_50_50_top_0").unwrap();
     assert!(none.contact_channels().is_empty());
@@ -106,29 +128,48 @@ fn cheez_dip_at_100_is_not_the_drop() {
     assert!(!t.contact[9]);
 }
 
-/// The release rule (docs/labels.md) on the real successes: every success with a contact
-/// channel gets a release well after the lift window, where the force curves show the hand
-/// opening (116–146 steps after the lift start); the two without contact get none.
+/// The release rule (docs/labels.md) on the real successes. With the dataset's label.txt: every
+/// success with a contact channel gets a release well after the lift window, where the force
+/// curves show the hand opening (90–150 steps after the lift start); the two without contact
+/// get none. With estimated marks (recordings copied up to the grasp's end, 280 steps): a
+/// release in 9 of the 10, 80–140 steps after the lift; Scrub_50_461_right_5 loses its only
+/// contact before its estimated lift and has none (its armed window runs to the end).
 #[test]
 fn release_is_found_on_every_success_with_contact() {
     use slipguard_data::labels::detect_release;
     let cfg = LabelConfig::default();
     let trials = load_eagle_dataset(&data(), &cfg, |_, _| {}).expect("load");
-    let mut found = 0;
+    let (mut found, mut found_estimated) = (0, 0);
     for t in trials.iter().filter(|t| t.outcome == Outcome::Success) {
         let lift = t.marks.lift_start.unwrap();
         let r = detect_release(t, &cfg);
         eprintln!("{} lift {lift} release {r:?}", t.id);
-        if t.contact.iter().any(|&c| c) {
-            let r = r.unwrap_or_else(|| panic!("{}: no release found", t.id));
-            let after = r - lift;
+        if !t.contact.iter().any(|&c| c) {
+            assert_eq!(r, None, "{}", t.id);
+            continue;
+        }
+        if t.label_estimated() {
+            if t.id == "Scrub_50_461_right_5" {
+                assert_eq!(r, None);
+                continue;
+            }
+            let after = r.unwrap_or_else(|| panic!("{}: no release found", t.id)) - lift;
             assert!(
-                (90..=150).contains(&after),
+                (80..=140).contains(&after),
                 "{}: release {after} steps after lift",
                 t.id
             );
-            found += 1;
+            found_estimated += 1;
+            continue;
         }
+        let r = r.unwrap_or_else(|| panic!("{}: no release found", t.id));
+        let after = r - lift;
+        assert!(
+            (90..=150).contains(&after),
+            "{}: release {after} steps after lift",
+            t.id
+        );
+        found += 1;
     }
-    assert_eq!(found, 16);
+    assert_eq!((found, found_estimated), (16, 9));
 }
