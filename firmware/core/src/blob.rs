@@ -1,4 +1,4 @@
-//! Model blob formats v1 and v2: parsed zero-copy from `&[u8]` (flash on the target, an aligned
+//! Model blob formats v1, v2 and v3: parsed zero-copy from `&[u8]` (flash on the target, an aligned
 //! buffer on the host). The byte-by-byte layout is in `docs/model-format.md`; this module is its
 //! only parser and (behind `std`) its only writer.
 //!
@@ -6,6 +6,9 @@
 //! 4-byte aligned offset), and a CRC-32 (ISO-HDLC, as zlib's `crc32`) of everything before it.
 //! Version 2 is version 1 plus one more tensor, the hand-rule record ([`TensorKind::HandRule`]:
 //! the fused hand decision [`FusedHand`]); a model without a rule is written as version 1.
+//! Version 3 is version 2's layout for the hand-level variant ([`Variant::HandLstm`], one LSTM
+//! over the hand features of [`crate::features::hand`]), which versions 1 and 2 do not define:
+//! a v3 blob holds that variant and its hand-rule record, nothing else.
 //! All integers are little-endian. The blob must start at a 4-byte aligned address so that the
 //! `i32` tables can be read in place.
 //!
@@ -14,6 +17,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::features::FeatureLayout;
+use crate::features::hand::HAND_FEATURES;
 use crate::features::stft::{StftConfig, StftError, WindowShape};
 use crate::load_rule::{FusedHand, LOAD_WINDOW_MAX, LoadRule};
 use crate::units::Millihertz;
@@ -28,8 +32,10 @@ pub const MAGIC: [u8; 4] = *b"SGMB";
 /// image's first `total length` bytes. Built in RAM, never written to flash or sent.
 pub const IMAGE_MAGIC: [u8; 4] = *b"SGMI";
 /// The newest format version this parser reads (it reads every version from
-/// [`VERSION_1`]): a blob with a hand rule ([`ModelConfig::hand_rule`]).
-pub const VERSION: u16 = 2;
+/// [`VERSION_1`]): a hand-level model ([`Variant::HandLstm`]) with its hand rule.
+pub const VERSION: u16 = 3;
+/// The version of a per-channel model with a hand rule ([`ModelConfig::hand_rule`]).
+pub const VERSION_2: u16 = 2;
 /// The version of a blob without a hand rule (the writer still writes it, byte for byte).
 pub const VERSION_1: u16 = 1;
 /// Size of the fixed header.
@@ -44,7 +50,8 @@ pub const MAX_TENSORS: usize = 8;
 /// The CRC used by the blob (CRC-32/ISO-HDLC: zlib, PNG, Ethernet).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
-/// Which of the paper's four networks (Fig. 5) the blob holds. One name each: the enum variant
+/// Which network the blob holds: one of the paper's four (Fig. 5), run per channel, or the
+/// hand-level LSTM over all contact channels together. One name each: the enum variant
 /// is the paper's name, [`Variant::name`] its spelling in the CLIs, checkpoints, settings and
 /// JSON; the paper's letters (`a` … `d`, [`Variant::letter`]) are accepted as aliases at the
 /// command-line edge only ([`Variant::from_letter`]). Every `match` on it is exhaustive, so a
@@ -61,11 +68,24 @@ pub enum Variant {
     DataStftLstm = 2,
     /// (d) LSTM + STFT & LSTM: a force LSTM and a band LSTM, hidden states concatenated into the dense layer.
     LstmStftLstm = 3,
+    /// Hand-level LSTM (not the paper's): one LSTM per hand over the hand features of all
+    /// contact channels together ([`crate::features::hand`], including the STFT of the hand's
+    /// load), one p(unstable) per frame. Format v3 only.
+    HandLstm = 4,
 }
 
 impl Variant {
     /// All variants, in format order.
-    pub const ALL: [Variant; 4] = [
+    pub const ALL: [Variant; 5] = [
+        Self::Lstm,
+        Self::StftLstm,
+        Self::DataStftLstm,
+        Self::LstmStftLstm,
+        Self::HandLstm,
+    ];
+
+    /// The paper's four, the variants that run one network per channel.
+    pub const PER_CHANNEL: [Variant; 4] = [
         Self::Lstm,
         Self::StftLstm,
         Self::DataStftLstm,
@@ -80,20 +100,28 @@ impl Variant {
     pub fn uses_force(self) -> bool {
         match self {
             Self::Lstm | Self::DataStftLstm | Self::LstmStftLstm => true,
-            Self::StftLstm => false,
+            Self::StftLstm | Self::HandLstm => false,
         }
     }
-    /// Whether the network sees STFT bands.
+    /// Whether one network runs per hand over all contact channels (else one per channel).
+    pub fn is_hand(self) -> bool {
+        match self {
+            Self::HandLstm => true,
+            Self::Lstm | Self::StftLstm | Self::DataStftLstm | Self::LstmStftLstm => false,
+        }
+    }
+    /// Whether the blob's STFT setting is used: the channel's bands, or for the hand-level
+    /// variant the STFT of the hand load (its band-share feature).
     pub fn uses_bands(self) -> bool {
         match self {
-            Self::StftLstm | Self::DataStftLstm | Self::LstmStftLstm => true,
+            Self::StftLstm | Self::DataStftLstm | Self::LstmStftLstm | Self::HandLstm => true,
             Self::Lstm => false,
         }
     }
     /// Number of LSTMs.
     pub fn lstm_count(self) -> usize {
         match self {
-            Self::Lstm | Self::StftLstm | Self::DataStftLstm => 1,
+            Self::Lstm | Self::StftLstm | Self::DataStftLstm | Self::HandLstm => 1,
             Self::LstmStftLstm => 2,
         }
     }
@@ -104,15 +132,18 @@ impl Variant {
             Self::StftLstm => "stft-lstm",
             Self::DataStftLstm => "data-stft-lstm",
             Self::LstmStftLstm => "lstm-stft-lstm",
+            Self::HandLstm => "hand-lstm",
         }
     }
-    /// The paper's letter for the variant (Fig. 5: (a) to (d)).
+    /// The paper's letter for the variant (Fig. 5: (a) to (d)); `h` for the hand-level
+    /// variant, which is not the paper's.
     pub fn letter(self) -> char {
         match self {
             Self::Lstm => 'a',
             Self::StftLstm => 'b',
             Self::DataStftLstm => 'c',
             Self::LstmStftLstm => 'd',
+            Self::HandLstm => 'h',
         }
     }
     /// The variant of a paper's letter as a command line gives it (`c` or `(c)`): the CLIs'
@@ -179,7 +210,7 @@ impl core::str::FromStr for Variant {
             .find(|v| v.name() == s.trim())
             .ok_or(UnknownName {
                 what: "variant",
-                expected: "lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm (on a command line also a, b, c, d)",
+                expected: "lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm, hand-lstm (on a command line also a, b, c, d, h)",
             })
     }
 }
@@ -288,7 +319,15 @@ pub struct ModelConfig {
 
 impl ModelConfig {
     /// The features per step this header describes.
+    /// (The hand-level variant has no per-channel features: an empty layout.)
     pub fn feature_layout(&self) -> FeatureLayout {
+        if self.variant.is_hand() {
+            return FeatureLayout {
+                force: false,
+                diff: false,
+                bands: 0,
+            };
+        }
         FeatureLayout {
             force: self.variant.uses_force(),
             diff: self.force_diff,
@@ -303,9 +342,10 @@ impl ModelConfig {
             0
         }
     }
-    /// Number of STFT band features.
+    /// Number of STFT band features (0 for the hand-level variant, whose STFT gives one
+    /// feature among [`HAND_FEATURES`]).
     pub fn band_features(&self) -> usize {
-        if self.variant.uses_bands() {
+        if self.variant.uses_bands() && !self.variant.is_hand() {
             self.stft.n_bins as usize
         } else {
             0
@@ -313,6 +353,9 @@ impl ModelConfig {
     }
     /// Total features per step (rows of the normalisation table).
     pub fn feature_count(&self) -> usize {
+        if self.variant.is_hand() {
+            return HAND_FEATURES;
+        }
         // d(t) is also allowed as the only non-band input of the STFT variant.
         let diff_only = !self.variant.uses_force() && self.force_diff;
         self.force_features() + diff_only as usize + self.band_features()
@@ -321,10 +364,12 @@ impl ModelConfig {
     /// splits them after the force path.
     pub fn lstm_inputs(&self, k: usize) -> usize {
         match self.variant {
-            Variant::Lstm | Variant::StftLstm | Variant::DataStftLstm => match k {
-                0 => self.feature_count(),
-                _ => 0,
-            },
+            Variant::Lstm | Variant::StftLstm | Variant::DataStftLstm | Variant::HandLstm => {
+                match k {
+                    0 => self.feature_count(),
+                    _ => 0,
+                }
+            }
             Variant::LstmStftLstm => match k {
                 0 => self.force_features(),
                 1 => self.band_features(),
@@ -336,7 +381,8 @@ impl ModelConfig {
     pub fn sample_rate_hz(&self) -> f32 {
         self.sample_rate_mhz.hz_f32()
     }
-    /// Multiply-accumulates per channel step in the LSTMs and the dense layer (STFT excluded).
+    /// Multiply-accumulates per step in the LSTMs and the dense layer (STFT excluded): per
+    /// channel in contact, or per frame for the hand-level variant.
     pub fn macs_per_step(&self) -> usize {
         let mut macs = 0;
         let mut dense_in = 0;
@@ -660,8 +706,8 @@ impl<'a> ModelBlob<'a> {
         if !(VERSION_1..=VERSION).contains(&version) {
             return Err(BlobError::UnsupportedVersion(version));
         }
-        // Version 2 is version 1 plus the hand-rule record.
-        let with_rule = version == VERSION;
+        // Versions 2 and 3 are version 1 plus the hand-rule record.
+        let with_rule = version >= VERSION_2;
         let header_len = u16_at(bytes, 6) as usize;
         let total = u32_at(bytes, 8) as usize;
         if header_len != HEADER_LEN || total < HEADER_LEN + CRC_LEN {
@@ -700,7 +746,16 @@ impl<'a> ModelBlob<'a> {
         if bytes.as_ptr().align_offset(4) != 0 {
             return Err(BlobError::Misaligned);
         }
+        // The hand-level variant exists from v3 on (an unknown variant byte to v1 and v2), and
+        // v3 holds nothing else.
+        let hand_byte = bytes[16] == Variant::HandLstm as u8;
+        if hand_byte && version != VERSION {
+            return Err(BlobError::UnknownVariant(bytes[16]));
+        }
         let mut config = parse_config(bytes)?;
+        if config.variant.is_hand() != (version == VERSION) {
+            return Err(BlobError::InconsistentSizes);
+        }
 
         let tensor_count = u16_at(bytes, 48) as usize;
         let lstm_count = config.variant.lstm_count();
@@ -1009,6 +1064,10 @@ fn parse_config(b: &[u8]) -> Result<ModelConfig, BlobError> {
     let mut name = [0u8; 12];
     name.copy_from_slice(&b[52..64]);
 
+    if variant.is_hand() && flag_bits & flags::FORCE_DIFF != 0 {
+        // d(t) is a per-channel input.
+        return Err(BlobError::InconsistentSizes);
+    }
     let config = ModelConfig {
         model_id: u32_at(b, 12),
         name,
@@ -1105,13 +1164,22 @@ impl AlignedBlob {
 }
 
 /// Serialises a model: format v1 without a hand rule, v2 with one ([`ModelConfig::hand_rule`],
-/// its record last). The only writer of the format. A rule out of range
-/// ([`hand_rule_record`]) is written as given and refused by the parser: check it first.
+/// its record last), v3 for the hand-level variant (always with a record: without a rule, the
+/// one that passes the model's flag alone, [`FusedHand::MODEL_ONLY`]). The only writer of the
+/// format. A rule out of range ([`hand_rule_record`]) is written as given and refused by the
+/// parser: check it first.
 #[cfg(any(test, feature = "std"))]
 pub fn write_blob(config: &ModelConfig, tensors: &BlobTensors) -> Vec<u8> {
     let lstm_count = config.variant.lstm_count();
-    let version = if config.hand_rule.is_some() {
+    let mut config = *config;
+    if config.variant.is_hand() && config.hand_rule.is_none() {
+        config.hand_rule = Some(FusedHand::MODEL_ONLY);
+    }
+    let config = &config;
+    let version = if config.variant.is_hand() {
         VERSION
+    } else if config.hand_rule.is_some() {
+        VERSION_2
     } else {
         VERSION_1
     };

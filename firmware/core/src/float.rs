@@ -405,6 +405,23 @@ impl FloatModel {
         self.dense.logits(&hcat)
     }
 
+    /// One frame of raw features (a hand-level model's row of
+    /// [`crate::features::hand`], each `i16` read as value / 2^15) through normalisation,
+    /// LSTM, dense layer and decision.
+    pub fn step_row(&self, st: &mut FloatChannelState, raw_row: &[f32]) -> FloatStep {
+        let mut v = raw_row.to_vec();
+        self.normalise(&mut v);
+        let logits = self.logits(st, &v);
+        let p = p_from_logits(logits);
+        let p_q15 = (p * 32768.0).round().min(32767.0) as i16;
+        let unstable = DecisionConfig::of(&self.config).update(&mut st.decision, p_q15);
+        FloatStep {
+            logits,
+            p_unstable: p,
+            unstable,
+        }
+    }
+
     /// One raw sample through the whole float pipeline.
     pub fn step(&self, st: &mut FloatChannelState, raw: f32) -> FloatStep {
         let v = self.features(st, raw);
@@ -464,11 +481,23 @@ impl FloatModel {
     /// Sets the normalisation to the mean and standard deviation of the raw features over
     /// `sequences` (raw samples, one channel each, each run from a reset state).
     pub fn fit_normalisation(&mut self, sequences: &[&[f32]]) {
+        let rows: Vec<Vec<Vec<f32>>> = sequences
+            .iter()
+            .map(|s| raw_feature_sequence(&self.config, s))
+            .collect();
+        let refs: Vec<&[Vec<f32>]> = rows.iter().map(Vec::as_slice).collect();
+        self.fit_normalisation_rows(&refs);
+    }
+
+    /// Sets the normalisation to the mean and standard deviation of raw feature rows (one
+    /// slice of rows per sequence): a hand-level model's hand feature rows, or any variant's
+    /// rows from [`raw_feature_sequence`].
+    pub fn fit_normalisation_rows(&mut self, sequences: &[&[Vec<f32>]]) {
         let nf = self.config.feature_count();
         let (mut sum, mut sq, mut n) = (vec![0f64; nf], vec![0f64; nf], 0usize);
         for seq in sequences {
-            for v in raw_feature_sequence(&self.config, seq) {
-                for (j, x) in v.iter().enumerate() {
+            for v in seq.iter() {
+                for (j, x) in v.iter().enumerate().take(nf) {
                     sum[j] += *x as f64;
                     sq[j] += (*x as f64) * (*x as f64);
                 }

@@ -109,6 +109,15 @@ impl FusedHand {
     /// `guard_q15` that lets every model flag through.
     pub const NO_GUARD: i16 = i16::MAX;
 
+    /// The model's hand flag alone: no rule (strict fraction 0 never flags), no guard.
+    pub const MODEL_ONLY: FusedHand = FusedHand {
+        strict: LoadRule {
+            fraction_q15: 0,
+            window: 1,
+        },
+        guard_q15: Self::NO_GUARD,
+    };
+
     /// A fraction in Q0.15 as a real (+1.0 = 32 768).
     fn real(q15: i16) -> f64 {
         q15 as f64 / 32_768.0

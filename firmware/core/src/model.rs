@@ -1,10 +1,13 @@
-//! The whole per-channel pipeline over a parsed blob: sample → features → LSTM(s) → decision.
+//! The whole pipeline over a parsed blob: per channel, sample → features → LSTM(s) →
+//! decision; for the hand-level variant, per frame, the contact channels' inputs → hand
+//! features ([`crate::features::hand`]) → LSTM → p(unstable).
 
 use crate::MAX_INPUT;
 use crate::blob::{BlobError, ModelBlob, ModelConfig};
 use crate::decision::{
     ContactConfig, ContactEdge, ContactState, DecisionConfig, DecisionState, p_unstable,
 };
+use crate::features::hand::{HAND_FEATURES, HandFeatureConfig, HandFeatureState, hand_features};
 use crate::features::stft::StftPlan;
 use crate::features::{FeatureLayout, FeatureState, normalise, raw_features};
 use crate::lstm::{self, LstmState};
@@ -18,6 +21,44 @@ pub struct Model<'a> {
     layout: FeatureLayout,
     scale: InputScale,
     decision: DecisionConfig,
+    /// The hand features' windows (hand-level variant only).
+    hand: Option<HandFeatureConfig>,
+}
+
+/// The hand features' windows of a hand-level model's header (`None` for a per-channel
+/// variant): derived from its rate, its default contact threshold (the ratios' floor) and its
+/// STFT setting, so the blob needs no record of its own. The one home of that derivation
+/// (the model, the trainer's features and the tests use it).
+pub fn hand_feature_config(config: &ModelConfig) -> Option<HandFeatureConfig> {
+    config.variant.is_hand().then(|| {
+        HandFeatureConfig::for_rate_mhz(
+            config.sample_rate_mhz,
+            ContactConfig::of(config).on_q15 as i32,
+            config.stft.window_len,
+            config.stft.first_bin,
+            config.stft.n_bins,
+        )
+    })
+}
+
+/// Everything a hand-level model remembers between frames (about 0.8 KiB); reset at grasp
+/// start. The channels' contact gates stay in their [`ChannelState`]s.
+#[derive(Clone, Debug, Default)]
+pub struct HandState {
+    /// The hand features' history.
+    pub features: HandFeatureState,
+    /// The LSTM state.
+    pub lstm: LstmState,
+}
+
+impl HandState {
+    /// A state as after grasp start.
+    pub const fn new() -> Self {
+        Self {
+            features: HandFeatureState::new(),
+            lstm: LstmState::new(),
+        }
+    }
 }
 
 /// Everything one sensor channel remembers between steps (about 1.1 KiB with two LSTMs).
@@ -94,13 +135,70 @@ impl<'a> Model<'a> {
         } else {
             None
         };
+        let scale = InputScale::of(&config);
+        let hand = hand_feature_config(&config);
         Ok(Self {
             blob,
             plan,
             layout: config.feature_layout(),
-            scale: InputScale::of(&config),
+            scale,
             decision: DecisionConfig::of(&config),
+            hand,
         })
+    }
+
+    /// The hand features' windows of a hand-level model (`None` for a per-channel model).
+    pub fn hand_features(&self) -> Option<&HandFeatureConfig> {
+        self.hand.as_ref()
+    }
+
+    /// Whether one network runs per hand ([`Self::hand_p`]) rather than per channel.
+    pub fn is_hand(&self) -> bool {
+        self.hand.is_some()
+    }
+
+    /// Contact detection alone on one raw sample of a channel (what a hand-level model gates
+    /// its channels with): the edge and the channel's Q1.15 input.
+    pub fn gate(
+        &self,
+        state: &mut ChannelState,
+        contact: &ContactConfig,
+        raw: i32,
+    ) -> (ContactEdge, i16) {
+        let x = self.scale.to_q15(raw);
+        (contact.update(&mut state.contact, x), x)
+    }
+
+    /// One frame's raw hand features (Q3.12, [`crate::features::hand`]) from the channels'
+    /// Q1.15 inputs (`None` out of contact) and whether the lift command has come; all zero
+    /// for a per-channel model.
+    pub fn hand_feature_row(
+        &self,
+        state: &mut HandState,
+        x: &[Option<i16>],
+        lifted: bool,
+    ) -> [i16; HAND_FEATURES] {
+        let mut v = [0i16; HAND_FEATURES];
+        if let (Some(cfg), Some(plan)) = (&self.hand, &self.plan) {
+            hand_features(cfg, plan, &mut state.features, x, lifted, &mut v);
+        }
+        v
+    }
+
+    /// One frame of a hand-level model: hand features, normalisation, LSTM and dense layer →
+    /// the hand's p(unstable), Q0.15 (0 for a per-channel model).
+    pub fn hand_p(&self, state: &mut HandState, x: &[Option<i16>], lifted: bool) -> i16 {
+        let [only] = self.blob.lstms() else {
+            return 0;
+        };
+        if self.hand.is_none() {
+            return 0;
+        }
+        let mut v = self.hand_feature_row(state, x, lifted);
+        normalise(self.blob.norm, &mut v);
+        let n = only.inputs.min(HAND_FEATURES);
+        lstm::step(only, &mut state.lstm, &v[..n]);
+        p_unstable(&self.blob.dense, &[&state.lstm.h[..only.hidden]])
     }
 
     /// Header fields.
@@ -170,8 +268,12 @@ impl<'a> Model<'a> {
         &self.scale
     }
 
-    /// Features, LSTM(s) and dense layer for one Q1.15 sample; returns p(unstable) in Q0.15.
+    /// Features, LSTM(s) and dense layer for one Q1.15 sample; returns p(unstable) in Q0.15
+    /// (0 for a hand-level model, which has no per-channel network: [`Self::hand_p`]).
     pub fn p_unstable(&self, state: &mut ChannelState, x_q15: i16) -> i16 {
+        if self.hand.is_some() {
+            return 0;
+        }
         let mut v = [0i16; MAX_INPUT];
         raw_features(
             self.layout,

@@ -37,9 +37,7 @@ pub fn quantize(
     cell_frac_bits: Option<[u8; 2]>,
 ) -> Result<(Vec<u8>, QuantReport), FloatModelError> {
     model.validate()?;
-    let mut report = QuantReport::default();
-    let n_lstm = model.lstms.len();
-    let mut max_c = vec![0f32; n_lstm];
+    let mut max_c = vec![0f32; model.lstms.len()];
     for seq in calibration {
         let mut st = model.new_channel();
         for &raw in *seq {
@@ -49,6 +47,40 @@ pub fn quantize(
             }
         }
     }
+    quantize_calibrated(model, max_c, !calibration.is_empty(), cell_frac_bits)
+}
+
+/// [`quantize`] for a model that runs on rows of raw features (a hand-level model's hand
+/// feature rows, [`crate::features::hand`]): the calibration sequences are rows, one slice per
+/// sequence from a reset state.
+pub fn quantize_rows(
+    model: &FloatModel,
+    calibration: &[&[Vec<f32>]],
+    cell_frac_bits: Option<[u8; 2]>,
+) -> Result<(Vec<u8>, QuantReport), FloatModelError> {
+    model.validate()?;
+    let mut max_c = vec![0f32; model.lstms.len()];
+    for seq in calibration {
+        let mut st = model.new_channel();
+        for row in *seq {
+            model.step_row(&mut st, row);
+            for (m, s) in max_c.iter_mut().zip(&st.lstm) {
+                *m = s.c.iter().fold(*m, |a, c| a.max(c.abs()));
+            }
+        }
+    }
+    quantize_calibrated(model, max_c, !calibration.is_empty(), cell_frac_bits)
+}
+
+/// The rest of [`quantize`] once the calibration's largest |c| per LSTM (`max_c`) is known.
+fn quantize_calibrated(
+    model: &FloatModel,
+    max_c: Vec<f32>,
+    calibrated: bool,
+    cell_frac_bits: Option<[u8; 2]>,
+) -> Result<(Vec<u8>, QuantReport), FloatModelError> {
+    let mut report = QuantReport::default();
+    let n_lstm = model.lstms.len();
     let mut config = model.config;
     if config.model_id == 0 {
         config.model_id = crate::float::weights_id(&model.lstms, &model.dense);
@@ -57,7 +89,7 @@ pub fn quantize(
     for k in 0..n_lstm {
         let bits = match cell_frac_bits {
             Some(b) => b[k].clamp(1, 15),
-            None if calibration.is_empty() => DEFAULT_CELL_FRAC_BITS,
+            None if !calibrated => DEFAULT_CELL_FRAC_BITS,
             None => cell_bits_for(max_c[k] * CELL_HEADROOM),
         };
         config.cell_frac_bits[k] = bits;

@@ -188,8 +188,12 @@ fn each_kind_of_damage_has_its_own_error() {
     bad[0] = b'X';
     assert_eq!(parse(&bad), Err(BlobError::BadMagic));
     let mut bad = good.clone();
-    bad[4] = 3;
-    assert_eq!(parse(&bad), Err(BlobError::UnsupportedVersion(3)));
+    bad[4] = 4;
+    assert_eq!(parse(&bad), Err(BlobError::UnsupportedVersion(4)));
+    // A per-channel blob relabelled v3 (the hand-level variant's version) is refused, and so is
+    // the hand-level variant's byte in a v1 blob (v1 and v2 do not define it).
+    assert_eq!(patched(|b| b[4] = 3), Err(BlobError::InconsistentSizes));
+    assert_eq!(patched(|b| b[16] = 4), Err(BlobError::UnknownVariant(4)));
     let mut bad = good.clone();
     bad[4..6].copy_from_slice(&0u16.to_le_bytes());
     assert_eq!(parse(&bad), Err(BlobError::UnsupportedVersion(0)));

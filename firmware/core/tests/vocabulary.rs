@@ -10,7 +10,13 @@ fn names_round_trip_and_unknown_names_say_what_is_accepted() {
     let names: Vec<String> = Variant::ALL.iter().map(|v| v.to_string()).collect();
     assert_eq!(
         names,
-        ["lstm", "stft-lstm", "data-stft-lstm", "lstm-stft-lstm"]
+        [
+            "lstm",
+            "stft-lstm",
+            "data-stft-lstm",
+            "lstm-stft-lstm",
+            "hand-lstm"
+        ]
     );
     for v in Variant::ALL {
         assert_eq!(v.to_string().parse::<Variant>(), Ok(v));
@@ -25,7 +31,7 @@ fn names_round_trip_and_unknown_names_say_what_is_accepted() {
     let e = "gru".parse::<Variant>().unwrap_err();
     assert_eq!(
         e.to_string(),
-        "unknown variant (expected lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm (on a command line also a, b, c, d))"
+        "unknown variant (expected lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm, hand-lstm (on a command line also a, b, c, d, h))"
     );
     for bad in ["", "e", "(c", "cc", "()", "LSTM"] {
         assert!(bad.parse::<Variant>().is_err(), "`{bad}` parsed");
@@ -41,6 +47,7 @@ fn one_name_per_variant_and_the_papers_letters_only_on_a_command_line() {
         (Variant::StftLstm, "stft-lstm", ["b", "(b)"]),
         (Variant::DataStftLstm, "data-stft-lstm", ["c", " (c) "]),
         (Variant::LstmStftLstm, "lstm-stft-lstm", ["d", "(d)"]),
+        (Variant::HandLstm, "hand-lstm", ["h", "(h)"]),
     ];
     for (v, name, letters) in accepted {
         assert_eq!(name.parse::<Variant>(), Ok(v));

@@ -28,7 +28,7 @@ pub use slipguard_data::checkpoint_keys as keys;
 /// PyTorch prefixes of the LSTMs of a variant (the checkpoint's tensor names).
 pub fn lstm_prefixes(variant: Variant) -> &'static [&'static str] {
     match variant {
-        Variant::Lstm | Variant::StftLstm | Variant::DataStftLstm => &["lstm"],
+        Variant::Lstm | Variant::StftLstm | Variant::DataStftLstm | Variant::HandLstm => &["lstm"],
         Variant::LstmStftLstm => &["lstm_force", "lstm_bands"],
     }
 }

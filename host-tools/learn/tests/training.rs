@@ -90,7 +90,7 @@ fn label_shift_moves_the_unstable_region() {
 
 #[test]
 fn checkpoint_round_trip_every_variant() {
-    for v in Variant::ALL {
+    for v in Variant::PER_CHANNEL {
         for cfg in [
             force_config(v, true, 12, "rt", Millihertz(16_700)),
             suction_config(v, false, 8, "s"),

@@ -210,7 +210,7 @@ pub struct Args {
 
 pub fn parse_variants(s: &str) -> anyhow::Result<Vec<Variant>> {
     if s == "all" {
-        return Ok(Variant::ALL.to_vec());
+        return Ok(Variant::PER_CHANNEL.to_vec());
     }
     s.split(',')
         .map(|v| Variant::from_cli(v).with_context(|| format!("--variant `{}`", v.trim())))

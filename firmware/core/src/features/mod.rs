@@ -10,6 +10,7 @@
 //! force). [`Variant::LstmStftLstm`](crate::blob::Variant) feeds `[force, d(t)]` to its first LSTM
 //! and the bands to its second.
 
+pub mod hand;
 pub mod stft;
 
 use crate::MAX_INPUT;
