@@ -106,7 +106,7 @@ pub fn armed_line(name: &str, data: &str, level: &str, r: &ArmedReport) -> Strin
         m.detected,
         m.failures,
         ci(r.detected_rate_ci),
-        m.detected_with_lead(300.0),
+        m.detected_early(),
         m.lead_median_ms()
             .map_or("-".into(), |l| format!("{l:.0} ms")),
         m.false_alarm_grasps,

@@ -40,7 +40,7 @@ use slipguard_core::decision::{
     ContactConfig, DecisionConfig, DecisionState, FusedHand, HandConfig, HandOutput, LoadRule,
     LoadRuleState, Q15,
 };
-use slipguard_core::model::{ChannelState, Model};
+use slipguard_core::model::{ChannelState, HandState, Model};
 use slipguard_core::protocol::{
     Command, DecodeError, Error, Fault, Flags, Frame, Info, Message, PUnstable, Reply, ReplyBody,
     ReplyStatus, Samples, StreamMode, fault_code, mark, status, upload_code,
@@ -104,6 +104,106 @@ pub struct FrameResult {
     pub value: [i32; MAX_CHANNELS],
 }
 
+/// The per-channel part of one frame, borrowed from the [`App`] apart from its model.
+struct Channels<'a> {
+    states: &'a mut [ChannelState],
+    stale: &'a mut u16,
+    fault: u16,
+    contact: &'a ContactConfig,
+}
+
+impl Channels<'_> {
+    /// A channel's fault bookkeeping before its step: `false` for a faulted channel (not
+    /// stepped, reset before its next step), else its state reset if it comes back from a
+    /// fault (out of contact, so the model restarts at its next onset).
+    fn ready(&mut self, c: usize) -> bool {
+        let bit = 1u16 << c;
+        if self.fault & bit != 0 {
+            *self.stale |= bit;
+            return false;
+        }
+        if *self.stale & bit != 0 {
+            self.states[c].reset();
+            *self.stale &= !bit;
+        }
+        true
+    }
+
+    /// A per-channel model over the frame: each channel in contact through its network, then
+    /// the hand decision over the channels' p. Returns the hand's p and the model's hand flag.
+    fn channel_frame(
+        &mut self,
+        model: &Model<'_>,
+        hand: &HandConfig,
+        hand_state: &mut DecisionState,
+        r: &mut FrameResult,
+    ) -> (i16, bool) {
+        for c in 0..self.states.len() {
+            if !self.ready(c) {
+                continue;
+            }
+            let st = &mut self.states[c];
+            let Some(out) = model.step_in_contact(st, self.contact, r.value[c]).step else {
+                continue;
+            };
+            let bit = 1u16 << c;
+            r.contact |= bit;
+            r.p[c] = PUnstable::from_q15(Q15(out.p_unstable_q15));
+            if out.unstable {
+                r.unstable |= bit;
+            }
+        }
+        let n = self.states.len();
+        let HandOutput {
+            p_unstable_q15,
+            unstable,
+        } = hand.update(
+            hand_state,
+            // Each channel's p, `None` when not in contact (so not predicted on).
+            r.p[..n].iter().map(|p| p.q15().map(|p| p.0)),
+        );
+        (p_unstable_q15, unstable)
+    }
+
+    /// A hand-level model over the frame: each channel through its contact gate, then one
+    /// network over the channels in contact (and whether the lift came). Every channel in
+    /// contact carries the hand's p and the model's hand flag on the wire (there is no
+    /// per-channel p). Returns the hand's p and the model's hand flag.
+    fn hand_frame(
+        &mut self,
+        model: &Model<'_>,
+        hand_model: &mut HandState,
+        lifted: bool,
+        hand: &HandConfig,
+        hand_state: &mut DecisionState,
+        r: &mut FrameResult,
+    ) -> (i16, bool) {
+        let n = self.states.len();
+        let mut x = [None; MAX_CHANNELS];
+        for (c, xc) in x.iter_mut().enumerate().take(n) {
+            if !self.ready(c) {
+                continue;
+            }
+            let (edge, v) = model.gate(&mut self.states[c], self.contact, r.value[c]);
+            if edge.in_contact() {
+                *xc = Some(v);
+                r.contact |= 1 << c;
+            }
+        }
+        let p = model.hand_p(hand_model, &x[..n], lifted);
+        let unstable = hand.decision.update(hand_state, p);
+        for (c, pc) in r.p.iter_mut().enumerate().take(n) {
+            if r.contact & (1 << c) != 0 {
+                *pc = PUnstable::from_q15(Q15(p));
+                if unstable {
+                    r.unstable |= 1 << c;
+                }
+            }
+        }
+        (p, unstable)
+    }
+}
+
 /// The firmware application over a model borrowed from flash (or a host buffer).
 pub struct App<'m> {
     profile: Profile,
@@ -119,6 +219,11 @@ pub struct App<'m> {
     rule: Option<FusedHand>,
     /// The hand rule's recent loads (reset with `hand_state`).
     rule_state: LoadRuleState,
+    /// A hand-level model's features and LSTM (reset at grasp start; unused by a per-channel
+    /// model).
+    hand_model: HandState,
+    /// The lift command has come since the grasp start (a hand-level model's input).
+    lifted: bool,
     /// Channels whose state must be reset before their next step (after a fault).
     stale: u16,
     armed: bool,
@@ -194,6 +299,8 @@ impl<'m> App<'m> {
             hand_state: DecisionState::default(),
             rule,
             rule_state: LoadRuleState::new(),
+            hand_model: HandState::new(),
+            lifted: false,
             stale: 0,
             armed: true,
             tared: false,
@@ -220,6 +327,7 @@ impl<'m> App<'m> {
         a.skipped = self.skipped;
         a.stream = self.stream;
         a.marks = self.marks;
+        a.lifted = self.lifted;
         a
     }
 
@@ -320,38 +428,35 @@ impl<'m> App<'m> {
                 .profile
                 .to_model_units(input.value_q4[c], self.tare_q4[c]);
         }
-        let Ok(model) = &self.model else {
+        let App {
+            model,
+            states,
+            stale,
+            contact,
+            hand,
+            hand_state,
+            hand_model,
+            lifted,
+            armed,
+            ..
+        } = self;
+        let Ok(model) = &*model else {
             return r;
         };
-        for c in 0..n {
-            let bit = 1u16 << c;
-            if input.fault & bit != 0 {
-                self.stale |= bit;
-                continue;
-            }
-            let st = &mut self.states[c];
-            if self.stale & bit != 0 {
-                // Back from a fault: out of contact, so the model restarts at its next onset.
-                st.reset();
-                self.stale &= !bit;
-            }
-            let Some(out) = model.step_in_contact(st, &self.contact, r.value[c]).step else {
-                continue;
-            };
-            r.contact |= bit;
-            r.p[c] = PUnstable::from_q15(Q15(out.p_unstable_q15));
-            if out.unstable && self.armed {
-                r.unstable |= bit;
-            }
+        let mut ctx = Channels {
+            states: &mut states[..n],
+            stale,
+            fault: input.fault,
+            contact,
+        };
+        let (p_unstable_q15, unstable) = if model.is_hand() {
+            ctx.hand_frame(model, hand_model, *lifted, hand, hand_state, &mut r)
+        } else {
+            ctx.channel_frame(model, hand, hand_state, &mut r)
+        };
+        if !*armed {
+            r.unstable = 0;
         }
-        let HandOutput {
-            p_unstable_q15,
-            unstable,
-        } = self.hand.update(
-            &mut self.hand_state,
-            // Each channel's p, `None` when not in contact (so not predicted on).
-            r.p[..n].iter().map(|p| p.q15().map(|p| p.0)),
-        );
         r.hand_p_q15 = p_unstable_q15;
         let hand = match &self.rule {
             Some(rule) => {
@@ -566,6 +671,7 @@ impl<'m> App<'m> {
             Command::Info => (ReplyStatus::Ok, ReplyBody::Info(self.info())),
             Command::Lift => {
                 self.marks |= mark::LIFT;
+                self.lifted = true;
                 (ReplyStatus::Ok, ReplyBody::Lifted)
             }
             Command::StreamMode(m) => {
@@ -589,6 +695,8 @@ impl<'m> App<'m> {
                 }
                 self.hand_state = DecisionState::default();
                 self.rule_state = LoadRuleState::new();
+                self.hand_model = HandState::new();
+                self.lifted = false;
                 self.stale = 0;
                 self.armed = true;
                 (ReplyStatus::Ok, ReplyBody::GraspStarted)

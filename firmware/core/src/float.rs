@@ -249,6 +249,54 @@ pub fn raw_feature_sequence(config: &ModelConfig, samples: &[f32]) -> Vec<Vec<f3
     samples.iter().map(|&raw| st.push(config, raw)).collect()
 }
 
+/// A hand-level model's raw hand feature rows over a whole recording, as the firmware
+/// computes them ([`crate::model::Model::hand_feature_row`]): every channel through the
+/// model's default contact gate ([`crate::decision::ContactConfig::of`]) from `start` (the
+/// grasp start, where the firmware resets), the lift command at step `lift`, samples rounded
+/// to whole sensor units as the front end delivers them. One row per step from `start` to the
+/// end, each feature's `i16` as value / 2^15 (how the float model and the normalisation read
+/// it). `samples` is channel-major; empty for a per-channel variant.
+pub fn hand_feature_rows(
+    config: &ModelConfig,
+    samples: &[Vec<f32>],
+    start: usize,
+    lift: Option<usize>,
+) -> Vec<Vec<f32>> {
+    use crate::decision::{ContactConfig, ContactState};
+    use crate::features::hand::{HAND_FEATURES, HandFeatureState, hand_features};
+    use crate::features::stft::StftPlan;
+    let (Some(cfg), Ok(plan)) = (
+        crate::model::hand_feature_config(config),
+        StftPlan::new(config.stft),
+    ) else {
+        return Vec::new();
+    };
+    let contact = ContactConfig::of(config);
+    let scale = InputScale::of(config);
+    let n = samples.first().map_or(0, Vec::len);
+    let mut gates = vec![ContactState::new(); samples.len()];
+    let mut st = HandFeatureState::new();
+    let mut x = vec![None; samples.len()];
+    (start.min(n)..n)
+        .map(|t| {
+            for ((xc, g), ch) in x.iter_mut().zip(&mut gates).zip(samples) {
+                let v = scale.to_q15(ch[t].round() as i32);
+                *xc = contact.update(g, v).in_contact().then_some(v);
+            }
+            let mut out = [0i16; HAND_FEATURES];
+            hand_features(
+                &cfg,
+                &plan,
+                &mut st,
+                &x,
+                lift.is_some_and(|l| t >= l),
+                &mut out,
+            );
+            out.iter().map(|&v| v as f32 / 32768.0).collect()
+        })
+        .collect()
+}
+
 /// The float feature path's state: window of inputs and previous input.
 #[derive(Clone, Debug)]
 struct FeatureWindow {
@@ -266,6 +314,11 @@ impl FeatureWindow {
     }
 
     fn push(&mut self, config: &ModelConfig, raw: f32) -> Vec<f32> {
+        if config.variant.is_hand() {
+            // A hand-level model has no per-channel features (its rows come from every channel
+            // together, [`hand_feature_rows`]): a zero row of the right length.
+            return vec![0.0; config.feature_count()];
+        }
         let x = InputScale::of(config).to_real(raw);
         let mut out = Vec::with_capacity(config.feature_count());
         if config.variant.uses_force() {

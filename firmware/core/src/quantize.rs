@@ -31,12 +31,17 @@ pub struct QuantReport {
 
 /// Quantizes `model`, choosing each LSTM's cell format from `calibration` (raw sample
 /// sequences, one channel each, run from a reset state) or from `cell_frac_bits` when given.
+/// A hand-level model cannot run on one channel's samples: it ignores them (the default cell
+/// format unless given; calibrate it with [`quantize_rows`]).
 pub fn quantize(
     model: &FloatModel,
     calibration: &[&[f32]],
     cell_frac_bits: Option<[u8; 2]>,
 ) -> Result<(Vec<u8>, QuantReport), FloatModelError> {
     model.validate()?;
+    if model.config.variant.is_hand() {
+        return quantize_rows(model, &[], cell_frac_bits);
+    }
     let mut max_c = vec![0f32; model.lstms.len()];
     for seq in calibration {
         let mut st = model.new_channel();

@@ -205,6 +205,16 @@ fn quantized_hand_model_tracks_its_float_reference() {
     };
     let grasps: Vec<Vec<[i32; 4]>> = (1..=6).map(grasp).collect();
     let rows: Vec<Vec<Vec<f32>>> = grasps.iter().map(|g| rows_of(g)).collect();
+    // The whole-recording helper the trainer uses gives the same rows.
+    for (g, r) in grasps.iter().zip(&rows) {
+        let samples: Vec<Vec<f32>> = (0..4)
+            .map(|c| g.iter().map(|f| f[c] as f32).collect())
+            .collect();
+        assert_eq!(
+            &slipguard_core::float::hand_feature_rows(&cfg, &samples, 0, Some(40)),
+            r
+        );
+    }
     let refs: Vec<&[Vec<f32>]> = rows.iter().map(Vec::as_slice).collect();
     let mut float = FloatModel::init_like_pytorch(cfg, 77);
     float.fit_normalisation_rows(&refs[..4]);

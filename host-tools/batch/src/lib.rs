@@ -65,6 +65,9 @@ pub enum BatchError {
     RamImage,
     /// An LSTM's tensors do not have 4H rows of weights and parameters.
     Shape,
+    /// A hand-level model (`hand-lstm`): one network per hand, not per channel; run it with
+    /// `Model::hand_p`.
+    HandLevel,
 }
 
 impl fmt::Display for BatchError {
@@ -76,6 +79,9 @@ impl fmt::Display for BatchError {
             BatchError::Shape => {
                 f.write_str("an LSTM's weights or row parameters are not 4 x hidden rows")
             }
+            BatchError::HandLevel => f.write_str(
+                "a hand-level model runs one network per hand (Model::hand_p), not per channel",
+            ),
         }
     }
 }
@@ -197,6 +203,9 @@ impl<'a> BatchModel<'a> {
     pub fn new(model: &Model<'a>) -> Result<Self, BatchError> {
         let blob = model.blob();
         let config = blob.config;
+        if config.variant.is_hand() {
+            return Err(BatchError::HandLevel);
+        }
         let layout = config.feature_layout();
         let plan = if config.variant.uses_bands() {
             StftPlan::new(config.stft).ok()

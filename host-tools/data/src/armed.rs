@@ -20,6 +20,12 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::metrics::quantile;
 
+/// The lead a warning needs to give the controller time to tighten the grip: 0.3 s.
+pub const EARLY_LEAD_MS: f64 = 300.0;
+/// A lead this close below a threshold counts as reaching it: leads are whole frames, and 5
+/// frames at 16.7 Hz (299.4 ms) are the 0.3 s the product is judged by.
+pub const LEAD_TOLERANCE_MS: f64 = 1.0;
+
 /// One grasp (or one channel of a grasp) scored in its armed window.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ArmedGrasp {
@@ -144,9 +150,19 @@ impl ArmedMetrics {
         Some(quantile(&v, 0.5))
     }
 
-    /// Failures detected with a lead of at least `ms`.
+    /// Failures detected with a lead of at least `ms`, counting a lead within
+    /// [`LEAD_TOLERANCE_MS`] of it as reaching it (leads are whole frames: 5 frames at 16.7 Hz
+    /// are 299.4 ms, which counts as 0.3 s).
     pub fn detected_with_lead(&self, ms: f64) -> usize {
-        self.leads_ms.iter().filter(|&&l| l >= ms).count()
+        self.leads_ms
+            .iter()
+            .filter(|&&l| l >= ms - LEAD_TOLERANCE_MS)
+            .count()
+    }
+
+    /// Failures warned at least [`EARLY_LEAD_MS`] ahead (the product's early-warning count).
+    pub fn detected_early(&self) -> usize {
+        self.detected_with_lead(EARLY_LEAD_MS)
     }
 }
 
@@ -251,7 +267,7 @@ impl ArmedReport {
             m.detected,
             m.failures,
             ci(self.detected_rate_ci, true),
-            m.detected_with_lead(300.0),
+            m.detected_early(),
             m.lead_median_ms()
                 .map_or("-".into(), |l| format!("{l:.0} ms")),
             ci(self.lead_median_ms_ci, false),

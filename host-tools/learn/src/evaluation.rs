@@ -305,24 +305,128 @@ pub fn probabilities(
 /// Cross-validation folds by trial: failure trials and success trials (sorted by id) are dealt
 /// round-robin into `k` folds, so every fold has failures. Returns trial ids per fold.
 pub fn cv_folds<'a>(seqs: impl IntoIterator<Item = &'a Sequence>, k: usize) -> Vec<Vec<String>> {
-    let mut fail: Vec<String> = Vec::new();
-    let mut succ: Vec<String> = Vec::new();
-    for s in seqs {
-        let v = if s.failure() { &mut fail } else { &mut succ };
-        if !v.contains(&s.cs.trial_id) {
-            v.push(s.cs.trial_id.clone());
+    cv_folds_of(&trial_outcomes(seqs), k)
+}
+
+/// How cross-validation folds hold trials out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CvGrouping {
+    /// By trial ([`cv_folds`]): repeats of one grasp setting can sit on both sides.
+    #[default]
+    Trial,
+    /// By grasp setting ([`cv_folds_by_setting`]): every trial of a setting (object, force,
+    /// weight) in one fold, what a user's new object or weight looks like.
+    Setting,
+}
+
+impl CvGrouping {
+    /// The name the command line and checkpoints use.
+    pub fn name(self) -> &'static str {
+        match self {
+            CvGrouping::Trial => "trial",
+            CvGrouping::Setting => "setting",
         }
     }
+
+    /// The folds of `trials` ((id, failure) pairs) with `k` folds.
+    pub fn folds(self, trials: &[(String, bool)], k: usize) -> Vec<Vec<String>> {
+        match self {
+            CvGrouping::Trial => cv_folds_of(trials, k),
+            CvGrouping::Setting => cv_folds_by_setting(trials, k),
+        }
+    }
+}
+
+impl std::fmt::Display for CvGrouping {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for CvGrouping {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim() {
+            "trial" => Ok(CvGrouping::Trial),
+            "setting" => Ok(CvGrouping::Setting),
+            other => Err(format!("`{other}`: folds group by trial or setting")),
+        }
+    }
+}
+
+/// The distinct (trial id, failure) pairs of `seqs`, in first-seen order.
+pub fn trial_outcomes<'a>(seqs: impl IntoIterator<Item = &'a Sequence>) -> Vec<(String, bool)> {
+    let mut out: Vec<(String, bool)> = Vec::new();
+    for s in seqs {
+        if !out.iter().any(|(id, _)| id == &s.cs.trial_id) {
+            out.push((s.cs.trial_id.clone(), s.failure()));
+        }
+    }
+    out
+}
+
+/// [`cv_folds`] over (trial id, failure) pairs.
+pub fn cv_folds_of(trials: &[(String, bool)], k: usize) -> Vec<Vec<String>> {
+    let mut fail: Vec<String> = trials.iter().filter(|t| t.1).map(|t| t.0.clone()).collect();
+    let mut succ: Vec<String> = trials
+        .iter()
+        .filter(|t| !t.1)
+        .map(|t| t.0.clone())
+        .collect();
     fail.sort();
+    fail.dedup();
     succ.sort();
+    succ.dedup();
     let mut folds = vec![Vec::new(); k.max(1)];
     for (i, id) in fail.into_iter().enumerate() {
         folds[i % k.max(1)].push(id);
     }
-    // Successes continue where the failures stopped so fold sizes stay even.
     let off = folds.iter().map(Vec::len).sum::<usize>();
     for (i, id) in succ.into_iter().enumerate() {
         folds[(off + i) % k.max(1)].push(id);
+    }
+    folds
+}
+
+/// Cross-validation folds by grasp setting ([`slipguard_data::trial::setting_of_id`]): every
+/// trial of a setting in the same fold. Settings go, most failures first (then most trials,
+/// then by name), each to the fold with the fewest failures so far (then the fewest trials,
+/// then the lowest index), so the failures spread over the folds as evenly as whole settings
+/// allow. Deterministic: the same folds for every training seed. Returns trial ids per fold,
+/// sorted.
+pub fn cv_folds_by_setting(trials: &[(String, bool)], k: usize) -> Vec<Vec<String>> {
+    use std::collections::BTreeMap;
+    let k = k.max(1);
+    let mut settings: BTreeMap<String, (usize, Vec<String>)> = BTreeMap::new();
+    for (id, failure) in trials {
+        let e = settings
+            .entry(slipguard_data::trial::setting_of_id(id))
+            .or_default();
+        if !e.1.contains(id) {
+            e.0 += *failure as usize;
+            e.1.push(id.clone());
+        }
+    }
+    let mut order: Vec<(String, usize, Vec<String>)> = settings
+        .into_iter()
+        .map(|(s, (f, ids))| (s, f, ids))
+        .collect();
+    order.sort_by(|a, b| {
+        b.1.cmp(&a.1)
+            .then(b.2.len().cmp(&a.2.len()))
+            .then(a.0.cmp(&b.0))
+    });
+    let mut folds = vec![Vec::new(); k];
+    let mut fails = vec![0usize; k];
+    for (_, f, ids) in order {
+        let i = (0..k)
+            .min_by_key(|&i| (fails[i], folds[i].len(), i))
+            .unwrap_or(0);
+        fails[i] += f;
+        folds[i].extend(ids);
+    }
+    for f in &mut folds {
+        f.sort();
     }
     folds
 }

@@ -15,6 +15,7 @@ pub mod checkpoint;
 pub mod closed_loop;
 pub mod error;
 pub mod evaluation;
+pub mod hand;
 pub mod load_rule;
 pub mod product;
 #[cfg(feature = "train")]

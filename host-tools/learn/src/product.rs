@@ -10,7 +10,7 @@ use slipguard_batch::BatchModel;
 use slipguard_core::decision::{
     ContactConfig, ContactEdge, DecisionState, FusedHand, HandConfig, LoadRule, LoadRuleState,
 };
-use slipguard_core::model::{ChannelState, GatedOutput, Model};
+use slipguard_core::model::{ChannelState, GatedOutput, HandState, Model};
 use slipguard_core::sample::InputScale;
 
 use slipguard_data::armed::ArmedGrasp;
@@ -117,10 +117,56 @@ pub fn run_trial(
     contact: &ContactConfig,
     hand: &HandConfig,
 ) -> HandRun {
+    if model.is_hand() {
+        return run_trial_hand(model, trial, contact, hand);
+    }
     match BatchModel::new(model) {
         Ok(batch) => run_trial_batched(&batch, trial, contact, hand),
         Err(_) => run_trial_single(model, trial, contact, hand),
     }
+}
+
+/// Whether the controller's lift command has come by step `t` (the trial's lift mark): a
+/// hand-level model's input, as the firmware gets it from the lift command.
+pub fn lifted_at(trial: &Trial, t: usize) -> bool {
+    trial.marks.lift_start.is_some_and(|l| t >= l)
+}
+
+/// [`run_trial`] for a hand-level model (`hand-lstm`), as the firmware runs it
+/// (`slipguard_app::app`): every channel through its contact gate, one network over the
+/// channels in contact with the lift command at the trial's lift mark, the hand decision on its
+/// p, fused with the blob's rule. Every contact channel carries the hand's p and flag.
+pub fn run_trial_hand(
+    model: &Model<'_>,
+    trial: &Trial,
+    contact: &ContactConfig,
+    hand: &HandConfig,
+) -> HandRun {
+    let mut run = empty_run(trial, model.config().hand_rule);
+    let mut fuse = Fuse::new(run.rule);
+    let nc = trial.n_channels();
+    let mut states = vec![ChannelState::new(); nc];
+    let mut hs = HandState::new();
+    let mut hand_state = DecisionState::default();
+    let mut raw = vec![0i32; nc];
+    let mut x = vec![None; nc];
+    for t in run.start..trial.n_steps() {
+        for c in 0..nc {
+            raw[c] = trial.samples[c][t].round() as i32;
+            let (edge, v) = model.gate(&mut states[c], contact, raw[c]);
+            x[c] = edge.in_contact().then_some(v);
+        }
+        let p = model.hand_p(&mut hs, &x, lifted_at(trial, t));
+        let flag = hand.decision.update(&mut hand_state, p);
+        for c in 0..nc {
+            run.channel_p[c][t] = x[c].map(|_| p);
+            run.channel_flag[c][t] = x[c].is_some() && flag;
+        }
+        run.hand_p[t] = p;
+        let load = step_load(model.scale(), &raw, |c| x[c].is_some());
+        run.record(t, flag, load, &mut fuse);
+    }
+    run
 }
 
 /// A run with no step yet: `start` and the buffers of `trial`'s length and channels.
@@ -409,7 +455,7 @@ impl CurvePoint {
             detected_rate: m.detected_rate().unwrap_or(0.0),
             false_alarm_grasp_rate: m.false_alarm_grasp_rate().unwrap_or(0.0),
             lead_median_ms: m.lead_median_ms().unwrap_or(0.0),
-            detected_300ms: m.detected_with_lead(300.0),
+            detected_300ms: m.detected_early(),
             failures: m.failures,
             false_alarm_grasps: m.false_alarm_grasps,
             successes: m.successes,
@@ -489,7 +535,7 @@ pub fn windowed_runs(
             };
             let run = match &batch {
                 Some(b) => run_trial_batched(b, t, &contact, &hand),
-                None => run_trial_single(model, t, &contact, &hand),
+                None => run_trial(model, t, &contact, &hand),
             };
             Ok(Some(WindowedRun {
                 trial: t.id.clone(),

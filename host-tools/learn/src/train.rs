@@ -389,9 +389,27 @@ pub fn train(
     train: &[&ChannelSequence],
     val: &[&ChannelSequence],
     cfg: &TrainConfig,
-    mut progress: impl FnMut(Progress<'_>),
+    progress: impl FnMut(Progress<'_>),
 ) -> Result<TrainOutcome> {
     if train.is_empty() {
+        return Err(LearnError::Training("no training sequences".into()));
+    }
+    init.validate()?;
+    let ptrain = prepare(init, train, cfg.label_lead);
+    let pval = prepare(init, val, cfg.label_lead);
+    train_prepared(init, &ptrain, &pval, cfg, progress)
+}
+
+/// [`train`] on sequences already turned into normalised features and training labels (the
+/// hand-level model's rows, [`crate::hand`]).
+pub(crate) fn train_prepared(
+    init: &FloatModel,
+    ptrain: &Prepared,
+    pval: &Prepared,
+    cfg: &TrainConfig,
+    mut progress: impl FnMut(Progress<'_>),
+) -> Result<TrainOutcome> {
+    if ptrain.feats.is_empty() {
         return Err(LearnError::Training("no training sequences".into()));
     }
     init.validate()?;
@@ -399,8 +417,6 @@ pub fn train(
     let mut varmap = VarMap::new();
     let net = Net::new(init, &mut varmap, &dev)?;
     let nf = init.config.feature_count();
-    let ptrain = prepare(init, train, cfg.label_lead);
-    let pval = prepare(init, val, cfg.label_lead);
     let params = ParamsAdamW {
         lr: cfg.lr,
         beta1: 0.9,
@@ -410,23 +426,23 @@ pub fn train(
     };
     let mut opt = AdamW::new(varmap.all_vars(), params)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5eed_7a1e);
-    let val_batches: Vec<Batch> = (0..val.len())
+    let val_batches: Vec<Batch> = (0..pval.feats.len())
         .collect::<Vec<_>>()
         .chunks(cfg.batch.max(1))
-        .map(|c| make_batch(&pval, c, nf, cfg, &dev))
+        .map(|c| make_batch(pval, c, nf, cfg, &dev))
         .collect::<Result<_>>()?;
     let mut best = (f64::INFINITY, 0usize, init.clone());
     if !val_batches.is_empty() {
         best.0 = mean_loss(&val_batches, |b| batch_loss(&net, b))?;
     }
     let mut history = Vec::new();
-    let mut order: Vec<usize> = (0..train.len()).collect();
+    let mut order: Vec<usize> = (0..ptrain.feats.len()).collect();
     for epoch in 1..=cfg.epochs {
         let log = train_epoch(
             epoch,
             &mut order,
             &mut rng,
-            &ptrain,
+            ptrain,
             &val_batches,
             (nf, cfg, &dev),
             &mut opt,

@@ -235,7 +235,7 @@ fn cross_validate(
         det.metrics.failures,
         pct(det.metrics.detected_rate()),
         ci(det.detected_rate_ci),
-        det.metrics.detected_with_lead(300.0)
+        det.metrics.detected_early()
     );
     Ok(())
 }

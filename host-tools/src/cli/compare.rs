@@ -626,7 +626,7 @@ fn summary_row(name: &str, per_seed: &[ArmedReport]) -> (String, serde_json::Val
     let failures = per_seed.first().map_or(0, |r| r.metrics.failures);
     let successes = per_seed.first().map_or(0, |r| r.metrics.successes);
     let det = f(&|m| m.detected as f64);
-    let d300 = f(&|m| m.detected_with_lead(300.0) as f64);
+    let d300 = f(&|m| m.detected_early() as f64);
     let lead = per_seed
         .iter()
         .filter_map(|r| r.metrics.lead_median_ms())

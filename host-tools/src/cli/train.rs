@@ -15,8 +15,8 @@ use slipguard_data::labels::{ChannelSequence, LabelConfig};
 use slipguard_learn::checkpoint::{self, Checkpoint};
 use slipguard_learn::closed_loop::{TrainingConfig as ClosedLoopTraining, training_sequences};
 use slipguard_learn::evaluation::{
-    self as ev, Kind, Sequence, cv_folds, decide, metrics_of, probabilities, quantize_model,
-    set_decision, tune_decision, with_quantized_model,
+    self as ev, Kind, Sequence, decide, metrics_of, probabilities, quantize_model, set_decision,
+    tune_decision, with_quantized_model,
 };
 use slipguard_learn::product::{self, OnsetRule};
 use slipguard_learn::qat::{QatConfig, blob_agreement, qat_finetune};
@@ -25,6 +25,8 @@ use slipguard_learn::training_data::{self, SimRecipe, TrainingSets};
 
 use super::progress::bar;
 use super::{check, load_real_trials};
+
+mod hand;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -43,7 +45,9 @@ pub struct Args {
     /// The profile trained for (--sensor, else the data's).
     #[arg(skip = ProfileId::Hand)]
     pub sensor: ProfileId,
-    /// Variants, comma separated: lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm, or all.
+    /// Variants, comma separated: lstm, stft-lstm, data-stft-lstm, lstm-stft-lstm (the paper's,
+    /// per channel), or all of those; or hand-lstm alone (one LSTM over the hand features of
+    /// every contact channel together, blob format v3).
     #[arg(long, default_value = "all")]
     pub variant: String,
     /// Add the force difference d(t) = x(t) - x(t-1) (paper eq. 3) as an input.
@@ -139,6 +143,15 @@ pub struct Args {
     /// else 2 to the number of real trials).
     #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub cv: usize,
+    /// How --cv (and --tune-decision-cv) folds hold trials out: `trial`, or `setting` (every
+    /// trial of a grasp setting, object + force + weight, in one fold: what to expect on a new
+    /// object or weight).
+    #[arg(long, default_value_t = ev::CvGrouping::Trial)]
+    pub cv_by: ev::CvGrouping,
+    /// hand-lstm: every training grasp is also taken with its lift mark moved by each of these
+    /// frames (comma-separated, e.g. -2,-1,1,2; none by default): the estimated marks' error.
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub lift_jitter: Vec<i64>,
     /// Share of the training trials held out (by trial) for early stopping (0 ≤ x < 1).
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.2, value_parser = check::share_below_one)]
     pub val_share: f64,
@@ -489,7 +502,10 @@ impl Run<'_> {
         k: usize,
         what: &str,
     ) -> anyhow::Result<Vec<product::WindowedRun>> {
-        let folds = cv_folds(train_real.iter().copied(), self.a.tune_decision_cv);
+        let folds = self.a.cv_by.folds(
+            &ev::trial_outcomes(train_real.iter().copied()),
+            self.a.tune_decision_cv,
+        );
         let mut runs = Vec::new();
         for (j, held) in folds.iter().enumerate().filter(|(_, h)| !h.is_empty()) {
             let inner_train: Vec<&Sequence> = train_real
@@ -825,6 +841,27 @@ pub fn run(mut a: Args) -> anyhow::Result<()> {
     check_options(&a)?;
     let run = Run::new(&a)?;
     let t_all = Instant::now();
+    if variants.contains(&Variant::HandLstm) {
+        anyhow::ensure!(
+            variants.len() == 1,
+            "--variant {}: hand-lstm trains alone (its data are whole grasps, not channels)",
+            a.variant
+        );
+        let Some((path, trials)) = &data else {
+            anyhow::bail!(
+                "--variant hand-lstm trains on recorded grasps: give a folder of labelled recordings (simulated trials alone are not supported)"
+            );
+        };
+        anyhow::ensure!(
+            a.sensor == ProfileId::Hand,
+            "{}: hand-lstm is for the hand profile's force pads, not {}",
+            path.display(),
+            a.sensor
+        );
+        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+        let summary = hand::run(&a, trials, &run.tc, &run.command)?;
+        return write_summary(&a.out, &run.command, &summary, t_all);
+    }
     let cl_cfg = closed_loop_config(&a)?;
     let (real_trials, sets) = training_sets(&a, data, &cl_cfg)?;
     let agreement_trials = agreement_trials(&a, &real_trials)?;
@@ -1204,7 +1241,7 @@ impl Run<'_> {
             "--cv {}: at most the number of real trials ({n_trials}) folds",
             a.cv
         );
-        Ok(cv_folds(real, a.cv))
+        Ok(a.cv_by.folds(&ev::trial_outcomes(real), a.cv))
     }
 
     /// Fold `k` (holding out the trials in `held`): trained ([`Run::fit_fold`]), its decision
