@@ -114,3 +114,50 @@ fn lead_time_spread() {
     );
     assert!(Spread::of(&[]).is_none());
 }
+
+/// A grasp of `n` steps armed from 0: a failure flagged from `flag_from` (None: never) or a
+/// success with an alarm or not.
+fn grasp(id: usize, failure: bool, flag_from: Option<usize>) -> slipguard_data::armed::ArmedGrasp {
+    let n = 20;
+    slipguard_data::armed::ArmedGrasp {
+        trial: format!("t{id}"),
+        failure,
+        start: 0,
+        end: n,
+        flags: (0..n).map(|t| flag_from.is_some_and(|f| t >= f)).collect(),
+        step_ms: 60.0,
+    }
+}
+
+/// The paired difference against counts done by hand: detector b warns 4 more of 10 drops at
+/// least 0.3 s ahead and alarms in 1 more of 10 held grasps; identical detectors differ by 0
+/// with a zero-width interval.
+#[test]
+fn paired_difference_counts_the_pairs() {
+    use slipguard_data::armed::{ArmedMetrics, paired_difference};
+    let mut a = Vec::new();
+    let mut b = Vec::new();
+    for i in 0..10 {
+        // a: 2 of 10 early (lead 10 steps = 600 ms), the rest late (2 steps = 120 ms).
+        a.push(grasp(i, true, Some(if i < 2 { 10 } else { 18 })));
+        // b: 6 of 10 early.
+        b.push(grasp(i, true, Some(if i < 6 { 10 } else { 18 })));
+    }
+    for i in 10..20 {
+        a.push(grasp(i, false, if i == 10 { Some(5) } else { None }));
+        b.push(grasp(i, false, if i <= 11 { Some(5) } else { None }));
+    }
+    let early = paired_difference(&a, &b, 7, |m: &ArmedMetrics| m.detected_early() as f64);
+    assert_eq!(early.value, 4.0);
+    let ci = early.ci.unwrap();
+    assert!(
+        ci.lo > 0.0 && ci.lo <= 4.0 && ci.hi >= 4.0 && ci.hi <= 10.0,
+        "{ci:?}"
+    );
+    let fa = paired_difference(&a, &b, 8, |m: &ArmedMetrics| m.false_alarm_grasps as f64);
+    assert_eq!(fa.value, 1.0);
+    let same = paired_difference(&a, &a, 9, |m: &ArmedMetrics| m.detected_early() as f64);
+    assert_eq!(same.value, 0.0);
+    let ci = same.ci.unwrap();
+    assert_eq!((ci.lo, ci.hi), (0.0, 0.0));
+}

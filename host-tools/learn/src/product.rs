@@ -158,9 +158,9 @@ pub fn run_trial_hand(
         }
         let p = model.hand_p(&mut hs, &x, lifted_at(trial, t));
         let flag = hand.decision.update(&mut hand_state, p);
-        for c in 0..nc {
-            run.channel_p[c][t] = x[c].map(|_| p);
-            run.channel_flag[c][t] = x[c].is_some() && flag;
+        for (c, xc) in x.iter().enumerate() {
+            run.channel_p[c][t] = xc.map(|_| p);
+            run.channel_flag[c][t] = xc.is_some() && flag;
         }
         run.hand_p[t] = p;
         let load = step_load(model.scale(), &raw, |c| x[c].is_some());
