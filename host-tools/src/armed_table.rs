@@ -26,6 +26,32 @@ pub struct Product {
     /// The blob's own hand rule (format v2): the hand row is then the fused hand flag, as the
     /// firmware computes it.
     pub hand_rule: Option<slipguard_core::decision::FusedHand>,
+    /// Scored trials whose marks were estimated from the force ([`Trial::label_estimated`]).
+    pub estimated: usize,
+    /// The hand row and the rule's on the other trials only (marks recorded, e.g. the dataset's
+    /// label.txt); `None` when no trial has estimated marks.
+    pub label_txt: Option<(ArmedReport, Option<ArmedReport>)>,
+}
+
+/// [`Product::label_txt`]: `hand` and the rule's grasps without the trials of `estimated`.
+pub fn label_txt_only(
+    hand: &[slipguard_data::armed::ArmedGrasp],
+    rule: Option<&RuleEval>,
+    estimated: &[String],
+) -> Option<(ArmedReport, Option<ArmedReport>)> {
+    if estimated.is_empty() {
+        return None;
+    }
+    let keep = |v: &[slipguard_data::armed::ArmedGrasp]| -> Vec<slipguard_data::armed::ArmedGrasp> {
+        v.iter()
+            .filter(|g| !estimated.contains(&g.trial))
+            .cloned()
+            .collect()
+    };
+    Some((
+        ArmedReport::of(&keep(hand)),
+        rule.map(|r| ArmedReport::of(&keep(&r.grasps))),
+    ))
 }
 
 /// The level label of a product's hand row: "hand", or "hand (fused)" for a blob with a rule.
@@ -189,6 +215,8 @@ pub fn rows_for_blob(
         paper_ahead_ci: None,
         rule: Some(load_rule::beside_model(&kept, m.config(), None)?),
         hand_rule,
+        estimated: 0,
+        label_txt: None,
     };
     Ok(armed_row(&p))
 }

@@ -467,6 +467,21 @@ fn report_text(
                 ));
             }
         }
+        for p in products {
+            if let Some((hand, rule)) = &p.label_txt {
+                text.push_str(&format!(
+                    "\n\n{}: {} of the scored trials have marks estimated from the force \
+                     (docs/labels.md); on the {} with recorded marks (label.txt) only: {} {}{}.",
+                    p.name,
+                    p.estimated,
+                    hand.metrics.grasps,
+                    hand_level(p),
+                    hand.summary(),
+                    rule.as_ref()
+                        .map_or(String::new(), |r| format!("; load rule {}", r.summary()))
+                ));
+            }
+        }
         if !skipped.is_empty() {
             text.push_str("\n\nSkipped (not scored in the armed window):\n");
             for e in skipped {
@@ -657,7 +672,15 @@ fn product_eval(
     });
     // The blob's rule (format v2) is in every run of its members (`HandRun::rule`).
     let hand_rule = curve_runs.iter().find_map(|(w, _)| w.run.rule);
+    let estimated: Vec<String> = trials
+        .iter()
+        .filter(|t| t.label_estimated() && hand.iter().any(|g| g.trial == t.id))
+        .map(|t| t.id.clone())
+        .collect();
+    let label_txt = slipguard::armed_table::label_txt_only(&hand, rule.as_ref(), &estimated);
     Ok(Product {
+        estimated: estimated.len(),
+        label_txt,
         name: g.name.clone(),
         in_sample: !cv,
         hand: ArmedReport::of(&hand),
@@ -697,6 +720,13 @@ fn product_json(p: &Product, paper: Option<&Row>) -> serde_json::Value {
         );
     }
     o.extend(p.hand.to_json("armed"));
+    o.insert("data.estimated_marks_trials".into(), json!(p.estimated));
+    if let Some((hand, rule)) = &p.label_txt {
+        o.extend(hand.to_json("armed_label_txt"));
+        if let Some(r) = rule {
+            o.extend(r.to_json("baseline.load_rule.armed_label_txt"));
+        }
+    }
     // "hand" or "hand (fused)": what the armed.* figures score (outside armed.*, whose keys
     // the baseline repeats).
     o.insert("hand_level".into(), json!(hand_level(p)));
@@ -802,6 +832,8 @@ mod tests {
             paper_success_ci: None,
             paper_ahead_ci: None,
             hand_rule: None,
+            estimated: 0,
+            label_txt: None,
             rule: Some(RuleEval {
                 how: "leave one trial out".into(),
                 picks: String::new(),

@@ -226,6 +226,11 @@ fn print_stats(
             LabelStatus::UnknownOutcome => "  [skipped: outcome unknown]".into(),
         };
         let nc = l.contact.iter().filter(|&&c| c).count();
+        let status = if t.label_estimated() {
+            format!("{status}  [marks estimated]")
+        } else {
+            status
+        };
         println!(
             "{:<28} {:>8} {:>12} {:>5} {:>5} {:>9} {:>6} {:>8}  {} / {}{}",
             t.id,
@@ -248,6 +253,31 @@ fn print_stats(
         "trials {} (labelled {}, skipped {}), failures with a drop {}",
         s.trials, s.labelled, s.skipped, s.failures_with_drop
     );
+    let estimated: Vec<bool> = trials.iter().map(|t| t.label_estimated()).collect();
+    if estimated.iter().any(|&e| e) {
+        // The same counts on each part: marks estimated from the force, and recorded (label.txt).
+        for (want, what) in [
+            (true, "marks estimated from the force (docs/labels.md)"),
+            (false, "recorded marks (label.txt)"),
+        ] {
+            let part: Vec<slipguard_data::labels::TrialLabels> = labels
+                .iter()
+                .zip(&estimated)
+                .filter(|(_, e)| **e == want)
+                .map(|(l, _)| l.clone())
+                .collect();
+            let p = LabelStats::from_labels(&part);
+            println!(
+                "  {what}: trials {} (labelled {}, skipped {}), failures with a drop {}, trial-level steps {:.2}% stable, {} per-channel sequences",
+                p.trials,
+                p.labelled,
+                p.skipped,
+                p.failures_with_drop,
+                100.0 * p.stable_share(),
+                p.channel_sequences
+            );
+        }
+    }
     println!(
         "trial-level steps: {} stable / {} unstable = {:.2}% stable",
         s.stable_steps,
