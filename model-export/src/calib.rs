@@ -38,6 +38,9 @@ pub struct DataSet {
     /// Per contact channel: the whole recording, every step from the first to the last (no
     /// labels). Calibration and agreement run on these: what the device sees when it streams.
     pub recordings: Vec<ChannelSequence>,
+    /// Per trial: every channel from the grasp start on, with the lift mark: what a hand-level
+    /// model (`hand-lstm`) calibrates and is compared on ([`crate::hand`]).
+    pub hands: Vec<crate::hand::HandRecording>,
     /// Sample rate of the data, Hz.
     pub rate_hz: f32,
     /// Warnings (rate or unit different from the model's).
@@ -90,6 +93,7 @@ pub fn load_data(
         unlabelled: 0,
         sequences: Vec::new(),
         recordings: Vec::new(),
+        hands: Vec::new(),
         rate_hz: trials[0].rate_hz,
         warnings: Vec::new(),
     };
@@ -112,6 +116,14 @@ pub fn load_data(
         )));
     }
     for t in &trials {
+        if t.contact.iter().any(|&c| c) {
+            out.hands.push(crate::hand::HandRecording {
+                trial_id: t.id.clone(),
+                samples: t.samples.clone(),
+                start: t.marks.grasp_start.unwrap_or(0).min(t.n_steps()),
+                lift: t.marks.lift_start,
+            });
+        }
         for (c, samples) in t.samples.iter().enumerate() {
             if t.contact.get(c) == Some(&true) && !samples.is_empty() {
                 out.recordings.push(ChannelSequence {
@@ -208,6 +220,12 @@ impl DataSet {
                 unlabelled: 0,
                 sequences: pick(&self.sequences),
                 recordings: pick(&self.recordings),
+                hands: self
+                    .hands
+                    .iter()
+                    .filter(|h| held.contains(&h.trial_id.as_str()) == keep)
+                    .cloned()
+                    .collect(),
                 rate_hz: self.rate_hz,
                 warnings: self.warnings.clone(),
             }
@@ -450,6 +468,9 @@ pub fn agreement(
     data: &DataSet,
     quiet: bool,
 ) -> Result<Agreement> {
+    if float.config.variant.is_hand() {
+        return crate::hand::agreement(float, blob, &data.hands);
+    }
     let mut a = compare(float, blob, &data.recordings, quiet)?;
     let windows = compare(float, blob, &data.sequences, true)?;
     a.float_metrics = windows.float_metrics;

@@ -8,6 +8,7 @@
 
 pub mod calib;
 pub mod error;
+pub mod hand;
 pub mod import;
 pub mod inspect;
 pub mod pipeline;

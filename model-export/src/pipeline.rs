@@ -190,10 +190,21 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         |d: &DataSet| -> Vec<Vec<f32>> { d.recordings.iter().map(|s| s.samples.clone()).collect() };
     let all: Vec<Vec<f32>> = data.as_ref().map(recordings).unwrap_or_default();
     let seqs: Vec<&[f32]> = all.iter().map(Vec::as_slice).collect();
-    let (blob, q, cal) = quantize_calibrated(&model, &seqs, opts.cell_bits, opts.quiet)?;
+    let hand = model.config.variant.is_hand();
+    // A hand-level model calibrates on whole grasps (every channel together), not channels.
+    let hands = |d: Option<&DataSet>| d.map_or(Vec::new(), |d| d.hands.clone());
+    let (blob, q, cal) = if hand {
+        crate::hand::quantize(&model, &hands(data.as_ref()), opts.cell_bits)?
+    } else {
+        quantize_calibrated(&model, &seqs, opts.cell_bits, opts.quiet)?
+    };
     // With a held-out split the agreement is that of the same procedure with the held-out
     // trials left out of calibration: a blob calibrated on the other trials, measured on them.
     let held_blob = match &split {
+        Some((rest, _)) if hand => {
+            let (b, _, c) = crate::hand::quantize(&model, &rest.hands, opts.cell_bits)?;
+            Some((b, c.cell_frac_bits))
+        }
         Some((rest, _)) => {
             let r = recordings(rest);
             let seqs: Vec<&[f32]> = r.iter().map(Vec::as_slice).collect();
@@ -240,6 +251,8 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         source: e,
     })?;
     let weight_loss = match (&agreement, agree_set) {
+        // The weight-loss split runs one channel at a time: not for a hand-level model.
+        _ if hand => None,
         (Some(a), Some(d)) => {
             let seqs: Vec<&[f32]> = d.recordings.iter().map(|s| s.samples.as_slice()).collect();
             Some(crate::report::weight_loss(

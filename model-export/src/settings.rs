@@ -133,6 +133,8 @@ pub const TRAINER_PROVENANCE_KEYS: &[&str] = &[
     "fold",
     "heldout_trials",
     "qat",
+    "cv_by",
+    "lift_jitter",
 ];
 
 /// Order in which a dual model's dense layer sees the two hidden states.
