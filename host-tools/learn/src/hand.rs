@@ -74,7 +74,7 @@ pub fn hand_sequences(
         let (_, end) = match armed_window(t, cfg) {
             Ok(Some(w)) => w,
             Ok(None) => continue,
-            Err(e @ ArmedError::NoDrop { .. }) => {
+            Err(e @ (ArmedError::NoDrop { .. } | ArmedError::DropBeforeLift { .. })) => {
                 skipped.push(e);
                 continue;
             }

@@ -274,6 +274,34 @@ pub enum ArmedError {
         /// Trial id.
         trial: String,
     },
+    /// No channel ever in contact: nothing a hand controller would act on.
+    NoContact {
+        /// Trial id.
+        trial: String,
+    },
+    /// A failure whose drop comes at or before its lift mark (an estimated lift mark can be
+    /// late): the armed window would be empty.
+    DropBeforeLift {
+        /// Trial id.
+        trial: String,
+        /// Drop step.
+        drop: usize,
+        /// Lift mark.
+        lift: usize,
+    },
+}
+
+impl ArmedError {
+    /// The trial it names.
+    pub fn trial(&self) -> &str {
+        match self {
+            ArmedError::NoLiftMark { trial }
+            | ArmedError::NoDrop { trial }
+            | ArmedError::UnknownOutcome { trial }
+            | ArmedError::NoContact { trial }
+            | ArmedError::DropBeforeLift { trial, .. } => trial,
+        }
+    }
 }
 
 impl std::fmt::Display for ArmedError {
@@ -293,6 +321,16 @@ impl std::fmt::Display for ArmedError {
             ArmedError::UnknownOutcome { trial } => write!(
                 f,
                 "{trial}: outcome unknown: set `# outcome: success|failure` in the recording"
+            ),
+            ArmedError::NoContact { trial } => write!(
+                f,
+                "{trial}: no channel in contact (no load of the contact threshold): not a grasp \
+                 to score"
+            ),
+            ArmedError::DropBeforeLift { trial, drop, lift } => write!(
+                f,
+                "{trial}: the drop (step {drop}) comes at or before the lift mark (step {lift}): \
+                 no armed window; check the marks"
             ),
         }
     }
@@ -316,9 +354,19 @@ pub fn armed_window(
         .lift_start
         .ok_or_else(|| ArmedError::NoLiftMark { trial: id() })?;
     let end = match trial.outcome {
-        Outcome::Failure => trial
-            .drop_step
-            .ok_or_else(|| ArmedError::NoDrop { trial: id() })?,
+        Outcome::Failure => {
+            let drop = trial
+                .drop_step
+                .ok_or_else(|| ArmedError::NoDrop { trial: id() })?;
+            if drop <= lift {
+                return Err(ArmedError::DropBeforeLift {
+                    trial: id(),
+                    drop,
+                    lift,
+                });
+            }
+            drop
+        }
         Outcome::Success => detect_release(trial, cfg).unwrap_or(trial.n_steps()),
         Outcome::Unknown => return Err(ArmedError::UnknownOutcome { trial: id() }),
     };
@@ -326,9 +374,10 @@ pub fn armed_window(
 }
 
 /// The trials that can be scored in their armed window, and those skipped with the reason:
-/// a failure with no drop in its force, and a trial without a lift mark while another trial
-/// with contact has one, are skipped (named, not refusing the data set); without any lift
-/// mark, or with an unknown outcome, the first such trial is the error.
+/// a trial without contact, a failure with no drop in its force or whose drop comes before its
+/// lift mark, and a trial without a lift mark while another trial with contact has one, are
+/// skipped (named, not refusing the data set); without any lift mark, or with an unknown
+/// outcome, the first such trial is the error.
 pub fn scoreable<'t>(
     trials: &[&'t Trial],
     cfg: &LabelConfig,
@@ -339,8 +388,13 @@ pub fn scoreable<'t>(
     let (mut keep, mut skipped) = (Vec::new(), Vec::new());
     for &t in trials {
         match armed_window(t, cfg) {
-            Ok(_) => keep.push(t),
-            Err(e @ ArmedError::NoDrop { .. }) => skipped.push(e),
+            Ok(Some(_)) => keep.push(t),
+            Ok(None) => skipped.push(ArmedError::NoContact {
+                trial: t.id.clone(),
+            }),
+            Err(e @ (ArmedError::NoDrop { .. } | ArmedError::DropBeforeLift { .. })) => {
+                skipped.push(e)
+            }
             Err(e @ ArmedError::NoLiftMark { .. }) if any_lift => skipped.push(e),
             Err(e) => return Err(e),
         }
@@ -530,8 +584,11 @@ pub fn windowed_runs(
     let runs: Vec<Result<Option<WindowedRun>, ArmedError>> = trials
         .par_iter()
         .map(|t| {
-            let Some(window) = armed_window(t, cfg)? else {
-                return Ok(None);
+            let window = match armed_window(t, cfg) {
+                Ok(Some(w)) => w,
+                // Nothing to score: no contact, or a drop before the lift mark.
+                Ok(None) | Err(ArmedError::DropBeforeLift { .. }) => return Ok(None),
+                Err(e) => return Err(e),
             };
             let run = match &batch {
                 Some(b) => run_trial_batched(b, t, &contact, &hand),
@@ -759,7 +816,10 @@ mod tests {
         let ok_s = trial("s", Outcome::Success, Some(5), None);
         let no_drop = trial("nodrop", Outcome::Failure, Some(5), None);
         let no_lift = trial("nolift", Outcome::Success, None, None);
-        let all = [&ok_f, &ok_s, &no_drop, &no_lift];
+        let early = trial("early", Outcome::Failure, Some(25), Some(20));
+        let mut none = trial("none", Outcome::Success, Some(5), None);
+        none.contact = vec![false];
+        let all = [&ok_f, &ok_s, &no_drop, &no_lift, &early, &none];
         let (keep, skipped) = scoreable(&all, &cfg).unwrap();
         let kept: Vec<&str> = keep.iter().map(|t| t.id.as_str()).collect();
         assert_eq!(kept, ["f", "s"]);
@@ -771,9 +831,18 @@ mod tests {
                 },
                 ArmedError::NoLiftMark {
                     trial: "nolift".into()
+                },
+                ArmedError::DropBeforeLift {
+                    trial: "early".into(),
+                    drop: 20,
+                    lift: 25
+                },
+                ArmedError::NoContact {
+                    trial: "none".into()
                 }
             ]
         );
+        assert!(skipped[2].to_string().contains("before the lift mark"));
         assert!(skipped[0].to_string().starts_with("nodrop: "));
         // Without any lift mark the data set cannot be scored: the first trial is the error.
         let a = trial("a", Outcome::Success, None, None);

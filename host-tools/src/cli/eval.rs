@@ -576,12 +576,7 @@ fn write_json(
 
 /// The trial an armed-window error names.
 fn skipped_trial(e: &product::ArmedError) -> String {
-    match e {
-        product::ArmedError::NoLiftMark { trial }
-        | product::ArmedError::NoDrop { trial }
-        | product::ArmedError::UnknownOutcome { trial } => trial.clone(),
-        _ => String::new(),
-    }
+    e.trial().to_string()
 }
 
 fn product_eval(
