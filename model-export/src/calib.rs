@@ -122,6 +122,12 @@ pub fn load_data(
                 samples: t.samples.clone(),
                 start: t.marks.grasp_start.unwrap_or(0).min(t.n_steps()),
                 lift: t.marks.lift_start,
+                end: match t.outcome {
+                    Outcome::Failure => t.drop_step,
+                    Outcome::Success => labels::detect_release(t, &cfg),
+                    Outcome::Unknown => None,
+                }
+                .unwrap_or(t.n_steps()),
             });
         }
         for (c, samples) in t.samples.iter().enumerate() {

@@ -25,6 +25,11 @@ pub struct HandRecording {
     pub start: usize,
     /// Lift mark.
     pub lift: Option<usize>,
+    /// End of the span the hand flag can matter in (exclusive): the drop of a failure, the
+    /// release of a success (`slipguard_data::labels`), the recording's end when neither is
+    /// known. After it the object is gone or the controller has released (the firmware is
+    /// disarmed), and the state of a network never trained there drifts freely.
+    pub end: usize,
 }
 
 impl HandRecording {
@@ -82,10 +87,29 @@ pub fn quantize(
     Ok((blob, q, cal))
 }
 
-/// Runs the blob as the firmware does and the float model on the same rows over every step of
-/// every recording, and compares p, the flag (the model's decision) and h. `channel` in the
-/// worst step is 0: a hand model has one output per frame.
+/// Runs the blob as the firmware does and the float model on the same rows over every
+/// recording from the grasp start to its [`HandRecording::end`], and compares p, the flag (the
+/// model's decision) and h. `channel` in the worst step is 0: a hand model has one output per
+/// frame. [`agreement_whole`] compares to each recording's last step.
 pub fn agreement(float: &FloatModel, blob: &[u8], recs: &[HandRecording]) -> Result<Agreement> {
+    agreement_over(float, blob, recs, false)
+}
+
+/// [`agreement`] over every step of every recording, past the armed span too.
+pub fn agreement_whole(
+    float: &FloatModel,
+    blob: &[u8],
+    recs: &[HandRecording],
+) -> Result<Agreement> {
+    agreement_over(float, blob, recs, true)
+}
+
+fn agreement_over(
+    float: &FloatModel,
+    blob: &[u8],
+    recs: &[HandRecording],
+    whole: bool,
+) -> Result<Agreement> {
     let aligned = AlignedBlob::new(blob);
     let model = Model::from_bytes(aligned.as_bytes()).map_err(|e| ExportError::Blob {
         path: "(exported blob)".into(),
@@ -118,7 +142,12 @@ pub fn agreement(float: &FloatModel, blob: &[u8], recs: &[HandRecording]) -> Res
         let mut fs = float.new_channel();
         let (mut sq, mut sf) = (DecisionState::default(), DecisionState::default());
         let mut recent: Vec<f32> = Vec::new();
-        for (i, row) in rows.iter().enumerate() {
+        let span = if whole {
+            rows.len()
+        } else {
+            r.end.saturating_sub(r.start).min(rows.len())
+        };
+        for (i, row) in rows.iter().enumerate().take(span) {
             let t = r.start + i;
             let x: Vec<Option<i16>> = gates
                 .iter_mut()

@@ -65,7 +65,15 @@ pub fn inspect(path: &std::path::Path, bytes: &[u8]) -> Result<BlobInfo> {
 pub fn describe_blob(blob: &ModelBlob<'_>) -> BlobInfo {
     let c = blob.config;
     let mut header = describe(&c);
-    let version = if c.hand_rule.is_some() { "2" } else { "1" };
+    // The version the writer picks for this header (blob::write_blob): v3 for the hand-level
+    // variant, v2 with a hand rule, else v1.
+    let version = if c.variant.is_hand() {
+        "3"
+    } else if c.hand_rule.is_some() {
+        "2"
+    } else {
+        "1"
+    };
     header.insert("format_version".into(), version.into());
     if let Some(r) = &c.hand_rule {
         header.insert(
@@ -176,9 +184,14 @@ impl std::fmt::Display for BlobInfo {
             )?;
         }
         writeln!(f, "parameters:        {}", self.parameters)?;
+        let per = if self.header.get("variant").is_some_and(|v| v == "hand-lstm") {
+            "per frame (one network per hand)"
+        } else {
+            "per channel"
+        };
         writeln!(
             f,
-            "MACs per step:     {} (LSTM + dense) + {} (STFT) per channel",
+            "MACs per step:     {} (LSTM + dense) + {} (STFT) {per}",
             self.macs_lstm_dense, self.macs_stft
         )?;
         writeln!(

@@ -534,6 +534,15 @@ fn run_verify(a: VerifyArgs) -> Result<()> {
         eprintln!("note: {note}");
     }
     let ag = calib::agreement(&float, &bytes, &data, a.quiet)?;
+    if float.config.variant.is_hand() {
+        let w = slipguard_export::hand::agreement_whole(&float, &bytes, &data.hands)?;
+        eprintln!(
+            "note: hand-level model: compared from each grasp start to its drop or release; over \
+             the whole recordings max |Δp| {:.4}, flag agreement {:.3} %",
+            w.max_abs_dp,
+            100.0 * w.flag_agreement
+        );
+    }
     print_agreement(&ag);
     if let Some(j) = &a.json {
         atomic_write(

@@ -277,6 +277,19 @@ pub fn export(opts: &ExportOptions) -> Result<Exported> {
         notes.extend(d.warnings.iter().cloned());
     }
     notes.extend(coverage_note);
+    if let (true, Some(d)) = (hand, &data) {
+        // The agreement of a hand-level model spans the grasp start to the drop or release;
+        // past that the same comparison, for the record.
+        let w = crate::hand::agreement_whole(&model, &blob, &d.hands)?;
+        notes.push(format!(
+            "hand-level model: agreement measured from each grasp start to its drop or release \
+             (the span a hand flag can matter in); over the whole recordings, past it, max |Δp| \
+             {:.4}, flag agreement {:.3} % ({} steps)",
+            w.max_abs_dp,
+            100.0 * w.flag_agreement,
+            w.steps
+        ));
+    }
     let mut settings = describe(&parsed.config);
     settings.insert(
         "norm_mean".into(),

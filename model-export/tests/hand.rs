@@ -50,6 +50,7 @@ fn recording(k: u64) -> HandRecording {
         samples,
         start: 5,
         lift: Some(40),
+        end: n,
     }
 }
 

@@ -207,6 +207,73 @@ pub fn split_hand_by_trial<'a>(
         .partition(|s| !val_ids.iter().any(|v| v == &s.trial_id))
 }
 
+/// The paper's per-step metrics for a hand-level model: one sequence per grasp, from the
+/// grasp start over the paper's window ([`slipguard_data::labels::label_annotated`]: the
+/// trial-level labels, unstable from 1.2 s before the drop), its flag per step the model's own
+/// hand decision (threshold and hysteresis, no rule): the quantized blob as the firmware runs
+/// it ([`crate::product::run_trial`]) when `quantized` is given, else the float model on the
+/// same hand feature rows. Trials without labels or contact are left out.
+pub fn paper_sequences(
+    float: &FloatModel,
+    quantized: Option<&slipguard_core::model::Model<'_>>,
+    trials: &[&Trial],
+    cfg: &LabelConfig,
+) -> Vec<slipguard_data::metrics::EvalSequence> {
+    use slipguard_core::decision::{ContactConfig, DecisionConfig, DecisionState, HandConfig};
+    use slipguard_data::labels::{LabelStatus, label_annotated};
+    use slipguard_data::trial::Stability;
+    let stab = |u: bool| {
+        if u {
+            Stability::Unstable
+        } else {
+            Stability::Stable
+        }
+    };
+    trials
+        .iter()
+        .filter(|t| t.contact.iter().any(|&c| c))
+        .filter_map(|t| {
+            let l = label_annotated(t, cfg);
+            if l.status != LabelStatus::Labelled || l.steps.is_empty() {
+                return None;
+            }
+            let (s0, n) = (l.seq_start, l.seq_len);
+            let flags: Vec<bool> = match quantized {
+                Some(m) => {
+                    let run = crate::product::run_trial(
+                        m,
+                        t,
+                        &ContactConfig::of(m.config()),
+                        &HandConfig::of(m.config()),
+                    );
+                    run.model_flag[s0..s0 + n].to_vec()
+                }
+                None => {
+                    let rows = hand_feature_rows(&float.config, &t.samples, s0, t.marks.lift_start);
+                    let d = DecisionConfig::of(&float.config);
+                    let mut st = float.new_channel();
+                    let mut ds = DecisionState::default();
+                    rows.iter()
+                        .take(n)
+                        .map(|r| {
+                            let p = float.step_row(&mut st, r).p_unstable;
+                            d.update(&mut ds, (p * 32768.0).round().min(32767.0) as i16)
+                        })
+                        .collect()
+                }
+            };
+            let preds: Vec<Stability> = flags.into_iter().map(stab).collect();
+            Some(slipguard_data::metrics::EvalSequence::new(
+                &l.steps,
+                &preds,
+                l.drop_index(),
+                t.outcome == Outcome::Failure,
+                t.rate_hz as f64,
+            ))
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -162,6 +162,56 @@ pub fn eval_group(
     Ok(rows)
 }
 
+/// The paper's rows of a hand-level model (float and quantized): one sequence per grasp from
+/// the grasp start (`slipguard_learn::hand::paper_sequences`), each member on its held-out
+/// trials (all trials without folds).
+fn hand_paper_rows(
+    g: &Group,
+    trials: &[Trial],
+    cv: bool,
+    kinds: &[Kind],
+) -> anyhow::Result<Vec<Row>> {
+    let mut rows = Vec::new();
+    let cfg = LabelConfig::default().scaled_to(trials.first().map_or(PAPER_RATE_HZ, |t| t.rate_hz));
+    for &kind in kinds {
+        let mut ev = Vec::new();
+        for (ck, blob) in &g.members {
+            let h = ck.heldout_trials();
+            let test: Vec<&Trial> = trials
+                .iter()
+                .filter(|t| h.as_ref().is_none_or(|h| h.contains(&t.id)))
+                .collect();
+            let bytes = match blob {
+                Some(b) => b.clone(),
+                None => quantize_model(&ck.model, &[])?,
+            };
+            let aligned = slipguard_core::blob::AlignedBlob::new(&bytes);
+            let m = slipguard_core::model::Model::from_bytes(aligned.as_bytes())
+                .map_err(|e| anyhow::anyhow!("{}: the model blob does not parse: {e}", g.name))?;
+            let q = (kind == Kind::Quantized).then_some(&m);
+            ev.extend(slipguard_learn::hand::paper_sequences(
+                &ck.model, q, &test, &cfg,
+            ));
+        }
+        if ev.is_empty() {
+            continue;
+        }
+        rows.push(Row {
+            model: g.name.clone(),
+            data: format!(
+                "{} (hand level)",
+                if cv { "real held-out" } else { "real (all)" }
+            ),
+            kind,
+            metrics: slipguard_data::metrics::evaluate(
+                &ev,
+                slipguard_data::metrics::EventConfig::default(),
+            ),
+        });
+    }
+    Ok(rows)
+}
+
 /// Held-out description of a group: "fold k: ids" lines.
 pub fn heldout_lines(g: &Group) -> Vec<String> {
     g.members
@@ -380,6 +430,17 @@ fn evaluate(
     let real_calib = |ck: &Checkpoint| data.real_calib(ck);
     for g in groups {
         let unit = g.members[0].0.model.config.input_unit;
+        if g.members[0].0.model.config.variant.is_hand() {
+            // One network per grasp: the paper's metrics over hand sequences, no per-channel
+            // rows; simulated sets are per channel.
+            if !data.scored.is_empty() && fits(data.key, g) {
+                let cv = g.members.iter().all(|(c, _)| c.heldout_trials().is_some());
+                rows.extend(hand_paper_rows(g, &data.scored, cv, &kinds)?);
+                notes.extend(heldout_lines(g));
+                products.push(product_eval(g, &data.scored, &data.real, &real_calib, cv)?);
+            }
+            continue;
+        }
         if !data.real.is_empty() && fits(data.key, g) {
             let cv = g.members.iter().all(|(c, _)| c.heldout_trials().is_some());
             let name = if cv { "real held-out" } else { "real (all)" };
